@@ -1,0 +1,95 @@
+"""Zenoh sessions and publishers built from our config and the services table.
+
+Multicast scouting is off unless asked for: on an arena network other teams' robots must not be
+discovered or joined by accident.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import threading
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator, Literal
+
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field
+
+from courtloc.common.services_table import Topic
+
+log = logging.getLogger(__name__)
+
+_PRIORITY = {
+    "real_time": zenoh.Priority.REAL_TIME,
+    "interactive_high": zenoh.Priority.INTERACTIVE_HIGH,
+    "data_high": zenoh.Priority.DATA_HIGH,
+    "data": zenoh.Priority.DATA,
+    "data_low": zenoh.Priority.DATA_LOW,
+    "background": zenoh.Priority.BACKGROUND,
+}
+_CONGESTION = {"drop": zenoh.CongestionControl.DROP, "block": zenoh.CongestionControl.BLOCK}
+
+
+class ZenohConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    mode: Literal["client", "peer", "router"] = "client"
+    connect: list[str] = Field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    listen: list[str] = Field(default_factory=list)
+    config_file: Path | None = Field(
+        default=None, description="a standard zenoh JSON5 config; $ZENOH_CONFIG is used when unset")
+    multicast_scouting: bool = False
+    open_retry_s: float = Field(default=0.5, gt=0, description="first back-off while no router answers")
+    open_retry_max_s: float = Field(default=2.0, gt=0)
+
+
+def build_zenoh_config(cfg: ZenohConfig) -> zenoh.Config:
+    """Start from the standard config file when given; our explicit fields win over it."""
+    file = cfg.config_file or (Path(os.environ["ZENOH_CONFIG"]) if os.environ.get("ZENOH_CONFIG") else None)
+    zcfg = zenoh.Config.from_file(str(file)) if file else zenoh.Config()
+    zcfg.insert_json5("mode", json.dumps(cfg.mode))
+    zcfg.insert_json5("scouting/multicast/enabled", json.dumps(cfg.multicast_scouting))
+    if cfg.connect:
+        zcfg.insert_json5("connect/endpoints", json.dumps(cfg.connect))
+    if cfg.listen:
+        zcfg.insert_json5("listen/endpoints", json.dumps(cfg.listen))
+    return zcfg
+
+
+def open_session(cfg: ZenohConfig, stop: threading.Event | None = None) -> zenoh.Session | None:
+    """Open a session, waiting with back-off while no router answers (a client cannot open without one).
+
+    Returns None only when `stop` is set before a session could be opened.
+    """
+    delay = cfg.open_retry_s
+    while True:
+        try:
+            return zenoh.open(build_zenoh_config(cfg))
+        except zenoh.ZError as exc:
+            if stop is None:
+                raise
+            log.warning("zenoh: cannot open session (%s); retrying in %.1f s", str(exc).split(" at ")[0], delay)
+            if stop.wait(delay):
+                return None
+            delay = min(delay * 2, cfg.open_retry_max_s)
+
+
+@contextmanager
+def session(cfg: ZenohConfig) -> Iterator[zenoh.Session]:
+    """A session that is always closed, however the block ends."""
+    zsession = open_session(cfg)
+    assert zsession is not None
+    try:
+        yield zsession
+    finally:
+        zsession.close()
+
+
+def declare_publisher(zsession: zenoh.Session, topic: Topic, robot_id: str) -> zenoh.Publisher:
+    return zsession.declare_publisher(
+        topic.key(robot_id),
+        priority=_PRIORITY[topic.priority],
+        congestion_control=_CONGESTION[topic.congestion],
+        express=topic.express,
+    )

@@ -1,0 +1,120 @@
+"""The one services table: every topic's key expression, message type, rate, QoS and freshness.
+
+No other file spells a key expression: code asks this table (`TOPICS["infer/pose"].key(robot)`).
+Keys follow `courtloc/<robot_id>/<service>/<topic>`.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Literal
+
+from pydantic import BaseModel
+
+from courtloc.common.messages import Edges, Frame, GroundTruth, Health, Pose, ShotSolution
+
+ROOT = "courtloc"
+ROBOT_ID_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
+
+Priority = Literal["real_time", "interactive_high", "data_high", "data", "data_low", "background"]
+Congestion = Literal["drop", "block"]
+
+
+@dataclass(frozen=True)
+class Topic:
+    service: str
+    name: str
+    message: type[BaseModel]
+    rate_hz: float
+    priority: Priority
+    congestion: Congestion
+    express: bool
+    freshness_ms: float
+    doc: str
+
+    @property
+    def path(self) -> str:
+        return f"{self.service}/{self.name}"
+
+    def key(self, robot_id: str) -> str:
+        return f"{ROOT}/{check_robot_id(robot_id)}/{self.path}"
+
+
+@dataclass(frozen=True)
+class ServiceSpec:
+    name: str
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+    doc: str
+
+
+def check_robot_id(robot_id: str) -> str:
+    if not ROBOT_ID_PATTERN.match(robot_id):
+        raise ValueError(f"robot_id {robot_id!r} must match {ROBOT_ID_PATTERN.pattern} (one key chunk)")
+    return robot_id
+
+
+def _topic(service: str, name: str, message: type[BaseModel], rate_hz: float, priority: Priority,
+           freshness_ms: float, doc: str, congestion: Congestion = "drop", express: bool = True) -> Topic:
+    return Topic(service, name, message, rate_hz, priority, congestion, express, freshness_ms, doc)
+
+
+# Streams use DROP: a publisher blocked on a slow link would stall the stage (and zenoh closes
+# sessions stuck for seconds); the newest sample is what matters.
+_TOPICS: tuple[Topic, ...] = (
+    _topic("camera", "frame", Frame, 30.0, "data_high", 100.0, "camera image, raw BGR or JPEG"),
+    _topic("camera", "ground_truth", GroundTruth, 30.0, "data", 100.0, "true pose (sim or labelled replay)"),
+    _topic("preprocess", "edges", Edges, 30.0, "data_high", 120.0, "radial-scan hits of a frame"),
+    _topic("preprocess", "preview", Frame, 2.0, "background", 1000.0, "debug: mask and hits as JPEG",
+           express=False),
+    _topic("infer", "pose", Pose, 30.0, "real_time", 150.0, "robot pose on the court"),
+    _topic("infer", "shadow_pose", Pose, 30.0, "data_low", 150.0, "pose of a candidate model in shadow mode"),
+    _topic("shooter_bridge", "solution", ShotSolution, 30.0, "real_time", 200.0,
+           "distance, bearing and RPM sent to the MCU"),
+)
+
+SERVICES: dict[str, ServiceSpec] = {
+    spec.name: spec
+    for spec in (
+        ServiceSpec("camera", (), ("camera/frame", "camera/ground_truth"), "frames from a device, file, folder or the sim"),
+        ServiceSpec("preprocess", ("camera/frame",), ("preprocess/edges", "preprocess/preview"),
+                    "HSV white mask + radial scan"),
+        ServiceSpec("infer", ("preprocess/edges",), ("infer/pose", "infer/shadow_pose"), "edge hits -> pose"),
+        ServiceSpec("shooter_bridge", ("infer/pose",), ("shooter_bridge/solution",), "pose -> RPM -> MCU"),
+    )
+}
+
+HEALTH_TOPICS: dict[str, Topic] = {
+    name: _topic(name, "health", Health, 1.0, "background", 3000.0, "service health, once a second", express=False)
+    for name in SERVICES
+}
+
+TOPICS: dict[str, Topic] = {t.path: t for t in (*_TOPICS, *HEALTH_TOPICS.values())}
+
+
+def liveliness_key(robot_id: str, service: str) -> str:
+    return f"{ROOT}/{check_robot_id(robot_id)}/{service}/alive"
+
+
+def all_liveliness_key(robot_id: str) -> str:
+    return f"{ROOT}/{check_robot_id(robot_id)}/*/alive"
+
+
+def service_of_liveliness_key(key: str) -> str:
+    return key.split("/")[2]
+
+
+def all_health_key(robot_id: str) -> str:
+    return f"{ROOT}/{check_robot_id(robot_id)}/*/health"
+
+
+def robot_wildcard_key(robot_id: str) -> str:
+    """Every key of one robot (recorders, monitors, access rules)."""
+    return f"{ROOT}/{check_robot_id(robot_id)}/**"
+
+
+def topic_of_key(key: str) -> Topic | None:
+    parts = key.split("/")
+    if len(parts) != 4 or parts[0] != ROOT:
+        return None
+    return TOPICS.get(f"{parts[2]}/{parts[3]}")

@@ -1,0 +1,3 @@
+from courtloc.cli import main
+
+main()

@@ -1,0 +1,39 @@
+"""The `courtloc` command: one entry point, each sub-command defined next to the code it drives."""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from typing import Sequence
+
+# Each module here exposes `register(subparsers)`, adding its sub-command(s) with `set_defaults(func=...)`.
+# Handlers import heavy libraries lazily so `courtloc --help` stays fast.
+COMMAND_MODULES: tuple[str, ...] = (
+    "courtloc.bench",
+    "courtloc.services.shooter_bridge.cli",
+    "courtloc.stage_cli",
+    "courtloc.up_cli",
+    "courtloc.training.cli",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="courtloc", description=__doc__)
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        sys.exit(2)
+    code = args.func(args)
+    sys.exit(int(code or 0))

@@ -1,0 +1,135 @@
+"""`courtloc up`: a router and every configured stage as separate OS processes, supervised.
+
+The launcher restarts a stage that dies (with back-off), watches the bus as a client to print one
+live status line, and writes a JSON summary on exit.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from courtloc.deployment import DeploymentConfig
+
+log = logging.getLogger("courtloc.launcher")
+
+
+@dataclass
+class Child:
+    name: str
+    argv: list[str]
+    backoff_s: float
+    process: subprocess.Popen | None = None
+    restarts: int = 0
+    next_start: float = 0.0
+    log_path: Path | None = None
+
+    def start(self, log_dir: Path) -> None:
+        self.log_path = log_dir / f"{self.name}.log"
+        handle = self.log_path.open("ab")
+        self.process = subprocess.Popen(self.argv, stdout=handle, stderr=subprocess.STDOUT,
+                                        stdin=subprocess.DEVNULL)
+        handle.close()
+
+    def alive(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
+    def stop(self, timeout: float) -> None:
+        if self.process is None or self.process.poll() is not None:
+            return
+        self.process.terminate()
+        try:
+            self.process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            log.warning("%s did not stop in %.0f s; killing it", self.name, timeout)
+            self.process.kill()
+            self.process.wait()
+
+
+@dataclass
+class Supervisor:
+    config: DeploymentConfig
+    config_path: Path
+    log_dir: Path
+    children: list[Child] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        python = [sys.executable, "-m", "courtloc"]
+        backoff = self.config.launcher.restart_backoff_s
+        if self.config.launcher.run_router:
+            listen = [a for ep in self.config.router.listen for a in ("--listen", ep)]
+            self.children.append(Child("router", [*python, "router", *listen], backoff))
+        for name in self.config.launcher.services:
+            self.children.append(Child(name, [*python, "run", name, "--config", str(self.config_path)], backoff))
+
+    def start_all(self) -> None:
+        for child in self.children:
+            child.start(self.log_dir)
+
+    def check(self) -> None:
+        """Restart dead children, with exponential back-off per child."""
+        now = time.monotonic()
+        for child in self.children:
+            if child.alive():
+                continue
+            if child.next_start == 0.0:
+                code = child.process.returncode if child.process else None
+                log.warning("%s exited (code %s); restarting in %.1f s (see %s)", child.name, code,
+                            child.backoff_s, child.log_path)
+                child.next_start = now + child.backoff_s
+            elif now >= child.next_start:
+                child.restarts += 1
+                child.start(self.log_dir)
+                child.next_start = 0.0
+                child.backoff_s = min(child.backoff_s * 2, self.config.launcher.restart_backoff_max_s)
+
+    def stop_all(self) -> None:
+        # Stages first, so none of them sees its router vanish while shutting down.
+        for child in reversed(self.children):
+            child.stop(timeout=8.0)
+
+    def restarts(self) -> dict[str, int]:
+        return {c.name: c.restarts for c in self.children}
+
+
+def write_effective_config(config: DeploymentConfig, folder: Path) -> Path:
+    path = folder / "deployment.json"
+    path.write_text(config.model_dump_json(indent=2))
+    return path
+
+
+def run_up(config: DeploymentConfig, duration_s: float | None, summary_path: Path | None,
+           stop: threading.Event, status_stream=sys.stderr) -> dict:  # noqa: ANN001
+    from courtloc.watch import BusWatcher
+
+    with tempfile.TemporaryDirectory(prefix="courtloc-up-") as tmp:
+        folder = Path(tmp)
+        log_dir = Path(os.environ.get("COURTLOC_LOG_DIR", folder))
+        log_dir.mkdir(parents=True, exist_ok=True)
+        supervisor = Supervisor(config, write_effective_config(config, folder), log_dir)
+        watcher = BusWatcher(config)
+        supervisor.start_all()
+        watcher.start(stop)
+        started = time.monotonic()
+        try:
+            while not stop.wait(0.25):
+                supervisor.check()
+                status_stream.write("\r" + watcher.status_line() + " " * 4)
+                status_stream.flush()
+                if duration_s is not None and time.monotonic() - started >= duration_s:
+                    break
+        finally:
+            status_stream.write("\n")
+            watcher.close()
+            supervisor.stop_all()
+        summary = watcher.summary(supervisor.restarts(), time.monotonic() - started)
+    if summary_path is not None:
+        summary_path.write_text(json.dumps(summary, indent=2))
+    return summary

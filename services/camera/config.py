@@ -1,0 +1,52 @@
+"""Camera service settings."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from courtloc.sim.source import SimSourceConfig
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class DeviceSourceConfig(_Section):
+    device: str = Field(default="0", description="a V4L2 index ('0') or a GStreamer pipeline string")
+    width: int = Field(default=640, gt=0)
+    height: int = Field(default=480, gt=0)
+    fps: float = Field(default=30.0, gt=0)
+
+
+class FileSourceConfig(_Section):
+    path: Path
+    loop: bool = True
+
+
+class FolderSourceConfig(_Section):
+    path: Path
+    csv: Path | None = Field(default=None, description="seed-format poses, published as ground truth")
+    pattern: str = "*.jpg"
+    loop: bool = True
+
+
+class CameraConfig(_Section):
+    source: Literal["device", "file", "folder", "sim"] = "sim"
+    fps: float = Field(default=30.0, gt=0, le=240)
+    encoding: Literal["bgr8", "jpeg"] = Field(
+        default="bgr8", description="bgr8 on the robot; jpeg when the next hop crosses Wi-Fi")
+    jpeg_quality: int = Field(default=85, ge=10, le=100)
+    reopen_backoff_s: float = Field(default=0.5, gt=0)
+    reopen_backoff_max_s: float = Field(default=5.0, gt=0)
+    device: DeviceSourceConfig = Field(default_factory=DeviceSourceConfig)
+    file: FileSourceConfig | None = None
+    folder: FolderSourceConfig | None = None
+    sim: SimSourceConfig = Field(default_factory=SimSourceConfig)
+
+    @model_validator(mode="after")
+    def _source_section_present(self) -> "CameraConfig":
+        if self.source in ("file", "folder") and getattr(self, self.source) is None:
+            raise ValueError(f"source = {self.source!r} needs a [camera.{self.source}] section")
+        return self

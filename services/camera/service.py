@@ -1,0 +1,98 @@
+"""Camera stage: publishes frames (and ground truth when the source knows it) at the configured rate."""
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+
+from courtloc.common.messages import Frame, GroundTruth, Header
+from courtloc.common.runtime import Service
+from courtloc.services.camera.config import CameraConfig
+from courtloc.services.camera.sources import Capture, FrameSource, SourceError, make_source
+
+
+def encode_frame(frame: np.ndarray, header: Header, encoding: str, jpeg_quality: int) -> Frame:
+    height, width = frame.shape[:2]
+    if encoding == "jpeg":
+        ok, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])
+        if not ok:
+            raise SourceError("JPEG encoding failed")
+        data = buf.tobytes()
+    else:
+        data = np.ascontiguousarray(frame).tobytes()
+    return Frame(header=header, width=width, height=height, encoding=encoding, data=data)
+
+
+class CameraService(Service):
+    name = "camera"
+
+    def __init__(self, robot_id: str, zenoh_config, config: CameraConfig) -> None:  # noqa: ANN001
+        super().__init__(robot_id, zenoh_config)
+        self.config = config
+        self.source: FrameSource = make_source(config)
+        self._open = False
+        self._backoff = config.reopen_backoff_s
+        self._seq = 0
+        self.source_errors = 0
+
+    def produce(self) -> None:
+        period = 1.0 / self.config.fps
+        deadline = time.monotonic()
+        while not self.stop_event.is_set():
+            capture = self._next_capture()
+            if capture is not None:
+                self._publish_capture(capture)
+            deadline += period
+            late = time.monotonic() - deadline
+            if late > period:
+                # We could not keep the rate: the slots we missed are drops, and we do not try to catch up.
+                missed = int(late // period)
+                self.extra_dropped += missed
+                deadline += missed * period
+            self.stop_event.wait(max(0.0, deadline - time.monotonic()))
+
+    def _next_capture(self) -> Capture | None:
+        try:
+            if not self._open:
+                self.source.open()
+                self._open = True
+                self._backoff = self.config.reopen_backoff_s
+                self.log.info("camera source %s open", self.config.source)
+            capture = self.source.read()
+        except SourceError as exc:
+            self.source_errors += 1
+            self.record_error("source", f"camera source: {exc}; reopening in {self._backoff:.1f} s")
+            self._close_source()
+            self.stop_event.wait(self._backoff)
+            self._backoff = min(self._backoff * 2, self.config.reopen_backoff_max_s)
+            return None
+        frame = capture.frame
+        if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+            self.record_error("source", f"source gave a {frame.shape} {frame.dtype} frame, not BGR uint8")
+            return None
+        return capture
+
+    def _publish_capture(self, capture: Capture) -> None:
+        header = Header.now(self.robot_id, self._seq, self.name)
+        header.valid = True
+        self._seq += 1
+        start = time.perf_counter_ns()
+        self.publish("camera/frame", encode_frame(capture.frame, header, self.config.encoding,
+                                                   self.config.jpeg_quality))
+        if capture.truth is not None:
+            x, y, yaw = capture.truth
+            self.publish("camera/ground_truth",
+                         GroundTruth(header=header, x=x, y=y, yaw=yaw, source=self.config.source))
+        self.record_latency(time.perf_counter_ns() - start)
+
+    def _close_source(self) -> None:
+        if self._open:
+            self.source.close()
+            self._open = False
+
+    def on_stop(self) -> None:
+        self._close_source()
+
+    def health_detail(self) -> dict[str, float | int | str]:
+        return {"source": self.config.source, "source_errors": self.source_errors, "seq": self._seq}

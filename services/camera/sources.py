@@ -1,0 +1,171 @@
+"""Frame sources of the camera service: a device, a video file, a folder of images, the sim.
+
+Every source raises `SourceError` when it cannot deliver; the service closes it and reopens with
+back-off, so an unplugged camera never crashes the process.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import cv2
+import numpy as np
+
+from courtloc.services.camera.config import CameraConfig, DeviceSourceConfig, FileSourceConfig, FolderSourceConfig
+
+
+class SourceError(RuntimeError):
+    pass
+
+
+@dataclass
+class Capture:
+    frame: np.ndarray  # BGR uint8, H x W x 3
+    truth: tuple[float, float, float] | None  # x, y, yaw when the source knows it
+
+
+class FrameSource(Protocol):
+    def open(self) -> None: ...
+    def read(self) -> Capture: ...
+    def close(self) -> None: ...
+
+
+class DeviceSource:
+    def __init__(self, config: DeviceSourceConfig) -> None:
+        self.config = config
+        self._cap: cv2.VideoCapture | None = None
+
+    def open(self) -> None:
+        dev = self.config.device
+        cap = cv2.VideoCapture(int(dev)) if dev.isdigit() else cv2.VideoCapture(dev, cv2.CAP_GSTREAMER)
+        if not cap.isOpened():
+            raise SourceError(f"cannot open camera device {dev!r}")
+        cap.set(cv2.CAP_PROP_FRAME_WIDTH, self.config.width)
+        cap.set(cv2.CAP_PROP_FRAME_HEIGHT, self.config.height)
+        cap.set(cv2.CAP_PROP_FPS, self.config.fps)
+        self._cap = cap
+
+    def read(self) -> Capture:
+        if self._cap is None:
+            raise SourceError("device not open")
+        ok, frame = self._cap.read()
+        if not ok or frame is None:
+            raise SourceError(f"camera {self.config.device!r} returned no frame")
+        return Capture(frame, None)
+
+    def close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+
+class FileSource:
+    def __init__(self, config: FileSourceConfig) -> None:
+        self.config = config
+        self._cap: cv2.VideoCapture | None = None
+
+    def open(self) -> None:
+        if not self.config.path.is_file():
+            raise SourceError(f"video file {self.config.path} not found")
+        cap = cv2.VideoCapture(str(self.config.path))
+        if not cap.isOpened():
+            raise SourceError(f"cannot decode video file {self.config.path}")
+        self._cap = cap
+
+    def read(self) -> Capture:
+        if self._cap is None:
+            raise SourceError("file not open")
+        ok, frame = self._cap.read()
+        if not ok and self.config.loop:
+            self._cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
+            ok, frame = self._cap.read()
+        if not ok or frame is None:
+            raise SourceError(f"end of {self.config.path}")
+        return Capture(frame, None)
+
+    def close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+
+def read_seed_poses(path: Path) -> dict[str, tuple[float, float, float]]:
+    """image_filename -> (x, y, yaw) from a seed-format CSV (yaw = 2 asin(orientation_z))."""
+    poses: dict[str, tuple[float, float, float]] = {}
+    try:
+        with path.open(newline="") as handle:
+            for line_no, row in enumerate(csv.DictReader(handle), start=2):
+                try:
+                    z = float(row["orientation_z"])
+                    poses[row["image_filename"]] = (float(row["x"]), float(row["y"]), 2.0 * math.asin(z))
+                except (KeyError, TypeError, ValueError) as exc:
+                    raise SourceError(f"{path}:{line_no}: bad pose row ({exc})") from None
+    except OSError as exc:
+        raise SourceError(f"cannot read {path}: {exc.strerror}") from None
+    return poses
+
+
+class FolderSource:
+    def __init__(self, config: FolderSourceConfig) -> None:
+        self.config = config
+        self._files: list[Path] = []
+        self._poses: dict[str, tuple[float, float, float]] = {}
+        self._index = 0
+
+    def open(self) -> None:
+        if not self.config.path.is_dir():
+            raise SourceError(f"image folder {self.config.path} not found")
+        self._files = sorted(self.config.path.glob(self.config.pattern))
+        if not self._files:
+            raise SourceError(f"no {self.config.pattern} images in {self.config.path}")
+        self._poses = read_seed_poses(self.config.csv) if self.config.csv else {}
+        self._index = 0
+
+    def read(self) -> Capture:
+        if self._index >= len(self._files):
+            if not self.config.loop:
+                raise SourceError(f"end of folder {self.config.path}")
+            self._index = 0
+        path = self._files[self._index]
+        self._index += 1
+        frame = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if frame is None:
+            raise SourceError(f"cannot decode {path}")
+        return Capture(frame, self._poses.get(path.name))
+
+    def close(self) -> None:
+        self._files = []
+
+
+class SimFrameSource:
+    """Adapter over the digital twin's source (its own trajectory and renderer)."""
+
+    def __init__(self, config: CameraConfig) -> None:
+        from courtloc.sim.source import SimSource
+
+        self._sim = SimSource(config.sim.model_copy(update={"fps": config.fps}))
+
+    def open(self) -> None:
+        self._sim.open()
+
+    def read(self) -> Capture:
+        frame, pose = self._sim.read()
+        return Capture(frame, pose)
+
+    def close(self) -> None:
+        self._sim.close()
+
+
+def make_source(config: CameraConfig) -> FrameSource:
+    if config.source == "device":
+        return DeviceSource(config.device)
+    if config.source == "file":
+        assert config.file is not None
+        return FileSource(config.file)
+    if config.source == "folder":
+        assert config.folder is not None
+        return FolderSource(config.folder)
+    return SimFrameSource(config)

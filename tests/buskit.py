@@ -1,0 +1,192 @@
+"""Real routers, real stage processes and a real bus client for integration tests.
+
+Everything waits on events (a line printed, a message received, a liveliness change) with a
+deadline; nothing sleeps to synchronise.
+"""
+from __future__ import annotations
+
+import queue
+import socket
+import subprocess
+import sys
+import threading
+import time
+from contextlib import closing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import zenoh
+
+from courtloc.common import codec
+from courtloc.common.bus import ZenohConfig, open_session
+from courtloc.common.services_table import TOPICS, all_liveliness_key, service_of_liveliness_key
+
+PYTHON = [sys.executable, "-m", "courtloc"]
+
+
+def free_port() -> int:
+    with closing(socket.socket(socket.AF_INET, socket.SOCK_STREAM)) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def endpoint(port: int) -> str:
+    return f"tcp/127.0.0.1:{port}"
+
+
+@dataclass
+class Proc:
+    """A child process whose output lines are collected and can be awaited."""
+
+    argv: list[str]
+    env: dict[str, str] | None = None
+    lines: list[str] = field(default_factory=list)
+    process: subprocess.Popen | None = None
+    _new_line: threading.Condition = field(default_factory=threading.Condition)
+
+    def start(self) -> "Proc":
+        self.process = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                        stdin=subprocess.DEVNULL, env=self.env)
+        threading.Thread(target=self._pump, daemon=True).start()
+        return self
+
+    def _pump(self) -> None:
+        assert self.process is not None and self.process.stdout is not None
+        for line in self.process.stdout:
+            with self._new_line:
+                self.lines.append(line.rstrip("\n"))
+                self._new_line.notify_all()
+        with self._new_line:
+            self._new_line.notify_all()
+
+    def wait_line(self, needle: str, timeout: float = 20.0) -> str:
+        deadline = time.monotonic() + timeout
+        with self._new_line:
+            while True:
+                for line in self.lines:
+                    if needle in line:
+                        return line
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or (self.process is not None and self.process.poll() is not None
+                                      and not self._pending()):
+                    raise AssertionError(f"no line with {needle!r} in {self.argv}:\n" + "\n".join(self.lines[-30:]))
+                self._new_line.wait(remaining)
+
+    def _pending(self) -> bool:
+        return bool(self.process and self.process.stdout and not self.process.stdout.closed)
+
+    @property
+    def pid(self) -> int:
+        assert self.process is not None
+        return self.process.pid
+
+    def alive(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
+    def stop(self, timeout: float = 10.0) -> int | None:
+        if self.process is None:
+            return None
+        if self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        return self.process.returncode
+
+    def kill(self) -> None:
+        if self.process is not None and self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+
+    def output(self) -> str:
+        return "\n".join(self.lines)
+
+
+def start_router(port: int) -> Proc:
+    router = Proc([*PYTHON, "router", "--listen", endpoint(port)]).start()
+    router.wait_line("router listening")
+    return router
+
+
+def start_stage(name: str, config_path: Path, verbose: bool = True) -> Proc:
+    argv = [*PYTHON, *(["-v"] if verbose else []), "run", name, "--config", str(config_path)]
+    return Proc(argv).start()
+
+
+class BusClient:
+    """A test's own Zenoh client on the router: await messages and liveliness, inject payloads."""
+
+    def __init__(self, port: int, robot_id: str = "robot1") -> None:
+        self.robot_id = robot_id
+        self.session = open_session(ZenohConfig(mode="client", connect=[endpoint(port)]))
+        self._queues: dict[str, queue.Queue] = {}
+        self._subs: list[Any] = []
+        self._alive: set[str] = set()
+        self._alive_cond = threading.Condition()
+        self._subs.append(self.session.liveliness().declare_subscriber(
+            all_liveliness_key(robot_id), self._on_liveliness, history=True))
+
+    def _on_liveliness(self, sample: zenoh.Sample) -> None:
+        with self._alive_cond:
+            service = service_of_liveliness_key(str(sample.key_expr))
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive.add(service)
+            else:
+                self._alive.discard(service)
+            self._alive_cond.notify_all()
+
+    def wait_alive(self, service: str, alive: bool = True, timeout: float = 30.0) -> None:
+        with self._alive_cond:
+            if not self._alive_cond.wait_for(lambda: (service in self._alive) == alive, timeout):
+                raise AssertionError(f"{service} liveliness never became {alive}")
+
+    def subscribe(self, path: str) -> None:
+        q: queue.Queue = queue.Queue()
+        self._queues[path] = q
+        self._subs.append(self.session.declare_subscriber(
+            TOPICS[path].key(self.robot_id), lambda sample: q.put(bytes(sample.payload))))
+
+    def messages(self, path: str, timeout: float = 20.0) -> Iterator[Any]:
+        """Decoded messages of `path` as they arrive, until `timeout` seconds pass without the caller stopping."""
+        q = self._queues[path]
+        deadline = time.monotonic() + timeout
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise AssertionError(f"timed out waiting on {path}")
+            try:
+                payload = q.get(timeout=remaining)
+            except queue.Empty:
+                raise AssertionError(f"timed out waiting on {path}") from None
+            yield codec.decode(payload, TOPICS[path].message)
+
+    def wait_for(self, path: str, predicate: Callable[[Any], bool] = lambda m: True, timeout: float = 20.0) -> Any:
+        for message in self.messages(path, timeout):
+            if predicate(message):
+                return message
+        raise AssertionError("unreachable")
+
+    def drain(self, path: str) -> None:
+        q = self._queues[path]
+        while not q.empty():
+            q.get_nowait()
+
+    def put_raw(self, path: str, payload: bytes) -> None:
+        self.session.put(TOPICS[path].key(self.robot_id), payload)
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.undeclare()
+        self.session.close()
+
+
+def write_config(path: Path, port: int, body: str = "", robot_id: str = "robot1", zenoh_extra: str = "") -> Path:
+    """A deployment file whose stages connect to the test router on `port`; quick reconnects."""
+    path.write_text(f'robot_id = "{robot_id}"\n[zenoh]\nconnect = ["{endpoint(port)}"]\n'
+                    f'open_retry_s = 0.1\nopen_retry_max_s = 0.3\n{zenoh_extra}\n{body}\n')
+    return path
+
+
