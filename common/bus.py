@@ -16,6 +16,7 @@ from typing import Iterator, Literal
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
+from courtloc.common.security import SecurityConfig, client_settings
 from courtloc.common.services_table import Topic
 
 log = logging.getLogger(__name__)
@@ -42,6 +43,8 @@ class ZenohConfig(BaseModel):
     multicast_scouting: bool = False
     open_retry_s: float = Field(default=0.5, gt=0, description="first back-off while no router answers")
     open_retry_max_s: float = Field(default=2.0, gt=0)
+    security: SecurityConfig | None = Field(
+        default=None, description="mTLS + password from a `courtloc secure init` bundle (tls/ endpoints)")
 
 
 def build_zenoh_config(cfg: ZenohConfig) -> zenoh.Config:
@@ -54,6 +57,14 @@ def build_zenoh_config(cfg: ZenohConfig) -> zenoh.Config:
         zcfg.insert_json5("connect/endpoints", json.dumps(cfg.connect))
     if cfg.listen:
         zcfg.insert_json5("listen/endpoints", json.dumps(cfg.listen))
+    # After a router restart zenoh reconnects on its own schedule (1 s doubling to 4 s by default);
+    # the same back-off as our first open keeps the resume time bounded by open_retry_max_s.
+    zcfg.insert_json5("connect/retry", json.dumps({
+        "period_init_ms": int(cfg.open_retry_s * 1000), "period_max_ms": int(cfg.open_retry_max_s * 1000),
+        "period_increase_factor": 2.0}))
+    if cfg.security is not None and cfg.mode != "router":
+        for path, value in client_settings(cfg.security).items():
+            zcfg.insert_json5(path, json.dumps(value))
     return zcfg
 
 

@@ -54,3 +54,18 @@ def load_model(path: Path | None, model: type[C]) -> C:
         return model.model_validate(data)
     except ValidationError as exc:
         raise ConfigError(describe_validation_error(str(path or "built-in defaults"), exc)) from None
+
+
+def resolve_relative_paths(model: C, base_dir: Path) -> C:
+    """A copy where every relative Path field, at any depth, is taken relative to `base_dir`
+    (the config file's folder), so a deployment means the same thing from any working directory."""
+    updates: dict[str, Any] = {}
+    for name in type(model).model_fields:
+        value = getattr(model, name)
+        if isinstance(value, Path) and not value.is_absolute():
+            updates[name] = (base_dir / value).resolve()
+        elif isinstance(value, BaseModel):
+            resolved = resolve_relative_paths(value, base_dir)
+            if resolved is not value:
+                updates[name] = resolved
+    return model.model_copy(update=updates) if updates else model

@@ -47,6 +47,7 @@ class Service:
         self.stale = 0
         self.extra_dropped = 0
         self.rejected: dict[str, int] = {}
+        self.published: dict[str, int] = {}
         self.last_error = ""
         self._latency = LatencyWindow()
         self._e2e = LatencyWindow()
@@ -72,7 +73,9 @@ class Service:
     # ---- helpers for subclasses -------------------------------------------------------------
     def publish(self, topic_path: str, message: BaseModel) -> None:
         self._publishers[topic_path].put(codec.encode(message))
-        self.frames_out += 1
+        self.published[topic_path] = self.published.get(topic_path, 0) + 1
+        if topic_path == self.spec.outputs[0]:
+            self.frames_out += 1
         header = getattr(message, "header", None)
         if isinstance(header, Header) and header.valid:
             self._e2e.add(header.span_ns())
@@ -189,6 +192,7 @@ class Service:
         p50, p99 = self._latency.percentiles_ms()
         e50, e99 = self._e2e.percentiles_ms()
         detail: dict[str, float | int | str] = {f"rejected.{k}": v for k, v in self.rejected.items()}
+        detail.update({f"published.{k}": v for k, v in self.published.items()})
         detail.update(self.health_detail())
         return Health(
             robot_id=self.robot_id, service=self.name, uptime_s=time.monotonic() - self._started,

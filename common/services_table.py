@@ -11,6 +11,7 @@ from typing import Literal
 
 from pydantic import BaseModel
 
+from courtloc.common.control import ModelReply, ModelRequest
 from courtloc.common.messages import Edges, Frame, GroundTruth, Health, Pose, ShotSolution
 
 ROOT = "courtloc"
@@ -90,6 +91,37 @@ HEALTH_TOPICS: dict[str, Topic] = {
 }
 
 TOPICS: dict[str, Topic] = {t.path: t for t in (*_TOPICS, *HEALTH_TOPICS.values())}
+
+
+@dataclass(frozen=True)
+class Control:
+    """A queryable: `service` answers requests of `request` type with `reply`; only `callers` may ask."""
+
+    service: str
+    name: str
+    request: type[BaseModel]
+    reply: type[BaseModel]
+    callers: tuple[str, ...]
+    timeout_s: float
+    doc: str
+
+    @property
+    def path(self) -> str:
+        return f"{self.service}/{self.name}"
+
+    def key(self, robot_id: str) -> str:
+        return f"{ROOT}/{check_robot_id(robot_id)}/{self.path}"
+
+
+PIT = "pit"
+
+CONTROLS: dict[str, Control] = {
+    c.path: c
+    for c in (
+        Control("infer", "model", ModelRequest, ModelReply, (PIT,), 120.0,
+                "model store: push (chunked, resumable), list, activate, rollback, shadow"),
+    )
+}
 
 
 def liveliness_key(robot_id: str, service: str) -> str:

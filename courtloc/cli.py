@@ -11,10 +11,17 @@ from typing import Sequence
 # Handlers import heavy libraries lazily so `courtloc --help` stays fast.
 COMMAND_MODULES: tuple[str, ...] = (
     "courtloc.bench",
+    "courtloc.sim.cli",
     "courtloc.services.shooter_bridge.cli",
     "courtloc.stage_cli",
     "courtloc.up_cli",
+    "courtloc.model_cli",
     "courtloc.training.cli",
+    "courtloc.localizer.eval_cli",
+    "courtloc.services.preprocess.cli",
+    "courtloc.security.cli",
+    "courtloc.recording.cli",
+    "courtloc.monitor.cli",
 )
 
 

@@ -12,10 +12,14 @@ from typing import Callable
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from courtloc.common.bus import ZenohConfig
-from courtloc.common.config_loader import load_model
+from courtloc.common.config_loader import load_model, resolve_relative_paths
 from courtloc.common.runtime import Service
+from courtloc.common.security import with_identity
 from courtloc.common.services_table import SERVICES, check_robot_id
 from courtloc.services.camera.config import CameraConfig
+from courtloc.services.infer.config import InferConfig
+from courtloc.services.preprocess.config import PreprocessConfig
+from courtloc.services.shooter_bridge.config import ShooterConfig
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
@@ -23,6 +27,9 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 class RouterConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     listen: list[str] = Field(default_factory=lambda: [DEFAULT_ENDPOINT])
+    connect: list[str] = Field(default_factory=list, description="other routers to join (a split deployment)")
+    secure_dir: Path | None = Field(
+        default=None, description="robot bundle of `courtloc secure init`: require mTLS + password, enforce the ACL")
 
 
 class LauncherConfig(BaseModel):
@@ -49,6 +56,9 @@ class DeploymentConfig(BaseModel):
     router: RouterConfig = Field(default_factory=RouterConfig)
     launcher: LauncherConfig = Field(default_factory=LauncherConfig)
     camera: CameraConfig = Field(default_factory=CameraConfig)
+    preprocess: PreprocessConfig = Field(default_factory=PreprocessConfig)
+    infer: InferConfig = Field(default_factory=InferConfig)
+    shooter_bridge: ShooterConfig = Field(default_factory=ShooterConfig)
 
     @field_validator("robot_id")
     @classmethod
@@ -57,12 +67,16 @@ class DeploymentConfig(BaseModel):
 
 
 def load_deployment(path: Path | None) -> DeploymentConfig:
-    return load_model(path, DeploymentConfig)
+    config = load_model(path, DeploymentConfig)
+    return config if path is None else resolve_relative_paths(config, Path(path).resolve().parent)
 
 
 # Stage classes are imported only when that stage runs: a camera process never loads onnxruntime.
 _STAGE_CLASSES: dict[str, str] = {
     "camera": "courtloc.services.camera.service:CameraService",
+    "preprocess": "courtloc.services.preprocess.service:PreprocessService",
+    "infer": "courtloc.services.infer.service:InferService",
+    "shooter_bridge": "courtloc.services.shooter_bridge.service:ShooterBridgeService",
 }
 
 
@@ -75,4 +89,6 @@ def build_stage(name: str, config: DeploymentConfig) -> Service:
         raise ValueError(f"no stage {name!r}; available: {available_stages()}")
     module_name, class_name = _STAGE_CLASSES[name].split(":")
     stage_class: Callable[..., Service] = getattr(importlib.import_module(module_name), class_name)
-    return stage_class(config.robot_id, config.zenoh, getattr(config, name))
+    # Each stage presents its own certificate and password (the ACL grants per identity).
+    zenoh_config = config.zenoh.model_copy(update={"security": with_identity(config.zenoh.security, name)})
+    return stage_class(config.robot_id, zenoh_config, getattr(config, name))

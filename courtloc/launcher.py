@@ -31,12 +31,32 @@ class Child:
     next_start: float = 0.0
     log_path: Path | None = None
 
+    ready_line: str | None = None
+    ready: threading.Event = field(default_factory=threading.Event)
+
     def start(self, log_dir: Path) -> None:
         self.log_path = log_dir / f"{self.name}.log"
+        self.ready.clear()
         handle = self.log_path.open("ab")
-        self.process = subprocess.Popen(self.argv, stdout=handle, stderr=subprocess.STDOUT,
+        if self.ready_line is None:
+            self.process = subprocess.Popen(self.argv, stdout=handle, stderr=subprocess.STDOUT,
+                                            stdin=subprocess.DEVNULL)
+            handle.close()
+            self.ready.set()
+            return
+        self.process = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                         stdin=subprocess.DEVNULL)
-        handle.close()
+        threading.Thread(target=self._pump, args=(handle,), daemon=True).start()
+
+    def _pump(self, handle) -> None:  # noqa: ANN001
+        """Copy the child's output to its log, and notice the line that says it is ready."""
+        assert self.process is not None and self.process.stdout is not None
+        with handle:
+            for line in self.process.stdout:
+                handle.write(line)
+                handle.flush()
+                if self.ready_line is not None and self.ready_line.encode() in line:
+                    self.ready.set()
 
     def alive(self) -> bool:
         return self.process is not None and self.process.poll() is None
@@ -65,13 +85,18 @@ class Supervisor:
         backoff = self.config.launcher.restart_backoff_s
         if self.config.launcher.run_router:
             listen = [a for ep in self.config.router.listen for a in ("--listen", ep)]
-            self.children.append(Child("router", [*python, "router", *listen], backoff))
+            self.children.append(Child("router", [*python, "router", *listen, "--config", str(self.config_path)],
+                                       backoff, ready_line="router listening"))
         for name in self.config.launcher.services:
             self.children.append(Child(name, [*python, "run", name, "--config", str(self.config_path)], backoff))
 
-    def start_all(self) -> None:
+    def start_all(self, ready_timeout_s: float = 15.0) -> None:
+        """The router first: stages started after it is listening connect at once."""
         for child in self.children:
             child.start(self.log_dir)
+            if not child.ready.wait(ready_timeout_s):
+                log.warning("%s not ready after %.0f s (see %s); starting the rest anyway", child.name,
+                            ready_timeout_s, child.log_path)
 
     def check(self) -> None:
         """Restart dead children, with exponential back-off per child."""
@@ -118,15 +143,24 @@ def run_up(config: DeploymentConfig, duration_s: float | None, summary_path: Pat
         supervisor.start_all()
         watcher.start(stop)
         started = time.monotonic()
+        live = status_stream.isatty()
+        last_status = 0.0
         try:
             while not stop.wait(0.25):
                 supervisor.check()
-                status_stream.write("\r" + watcher.status_line() + " " * 4)
-                status_stream.flush()
-                if duration_s is not None and time.monotonic() - started >= duration_s:
+                now = time.monotonic()
+                if live:
+                    status_stream.write("\r" + watcher.status_line() + " " * 4)
+                    status_stream.flush()
+                elif now - last_status >= 5.0:  # a log, not a terminal: one line every few seconds
+                    status_stream.write(watcher.status_line() + "\n")
+                    status_stream.flush()
+                    last_status = now
+                if duration_s is not None and now - started >= duration_s:
                     break
         finally:
-            status_stream.write("\n")
+            if live:
+                status_stream.write("\n")
             watcher.close()
             supervisor.stop_all()
         summary = watcher.summary(supervisor.restarts(), time.monotonic() - started)

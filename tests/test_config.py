@@ -68,3 +68,13 @@ def test_stage_exits_nonzero_before_touching_the_bus(tmp_path: Path) -> None:
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     assert "zenoh.mode" in result.stderr and "satellite" in result.stderr
+
+
+def test_relative_paths_are_relative_to_the_file(tmp_path: Path) -> None:
+    folder = tmp_path / "site"
+    folder.mkdir()
+    path = folder / "robot.toml"
+    path.write_text('[camera]\nsource = "folder"\n[camera.folder]\npath = "frames"\n[infer]\nstore = "store"\n')
+    config = load_deployment(path)
+    assert config.camera.folder is not None and config.camera.folder.path == folder / "frames"
+    assert config.infer.store == folder / "store"

@@ -40,7 +40,10 @@ class CameraService(Service):
         period = 1.0 / self.config.fps
         deadline = time.monotonic()
         while not self.stop_event.is_set():
+            was_open = self._open
             capture = self._next_capture()
+            if not was_open:
+                deadline = time.monotonic()  # opening a source is not a missed frame slot
             if capture is not None:
                 self._publish_capture(capture)
             deadline += period

@@ -1,0 +1,103 @@
+"""`courtloc model ...`: manage the model store of a robot from the pit laptop."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    model = sub.add_parser("model", help="push, list, activate, roll back or shadow models on a robot")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--robot", default=None, help="robot id (default: the config's)")
+    common.add_argument("--config", type=Path, default=None, help="deployment TOML (e.g. deploy/configs/pit.toml)")
+    common.add_argument("--connect", action="append", default=None, help="router endpoint, e.g. tcp/robot1.local:7447")
+    common.add_argument("--json", action="store_true", help="print the robot's reply as JSON")
+    ops = model.add_subparsers(dest="model_op", metavar="OP", required=True)
+
+    push = ops.add_parser("push", parents=[common], help="send a model (ONNX file or package folder); resumable")
+    push.add_argument("source", type=Path)
+    push.add_argument("--no-activate", action="store_true", help="store and validate only")
+    push.add_argument("--chunk-mb", type=float, default=4.0)
+    push.set_defaults(func=_run, action="push")
+    ops.add_parser("list", parents=[common], help="models in the robot's store").set_defaults(func=_run, action="list")
+    activate = ops.add_parser("activate", parents=[common], help="serve a stored version")
+    activate.add_argument("version", type=int)
+    activate.add_argument("--name", default=None)
+    activate.set_defaults(func=_run, action="activate")
+    ops.add_parser("rollback", parents=[common], help="serve the previously active model").set_defaults(
+        func=_run, action="rollback")
+    shadow = ops.add_parser("shadow", parents=[common], help="run a version beside the active one ('off' stops)")
+    shadow.add_argument("version", help="a version number, 'off', or 'status'")
+    shadow.add_argument("--name", default=None)
+    shadow.set_defaults(func=_run, action="shadow")
+
+
+def _run(args: argparse.Namespace) -> int:
+    from courtloc.common.bus import open_session
+    from courtloc.common.config_loader import ConfigError
+    from courtloc.deployment import load_deployment
+    from courtloc.model_client import ModelClient, ModelClientError
+
+    try:
+        config = load_deployment(args.config)
+    except ConfigError as exc:
+        print(exc, file=sys.stderr)
+        return 2
+    zcfg = config.zenoh.model_copy(update={"mode": "client", **({"connect": args.connect} if args.connect else {})})
+    session = open_session(zcfg)
+    assert session is not None
+    try:
+        client = ModelClient(session, args.robot or config.robot_id)
+        if args.action == "push":
+            def progress(done: int, total: int) -> None:
+                print(f"\rpushed {done / 2**20:8.1f} / {total / 2**20:.1f} MiB", end="", file=sys.stderr)
+
+            reply = client.push(args.source, activate=not args.no_activate,
+                                chunk_bytes=int(args.chunk_mb * 2**20), progress=progress)
+            print(file=sys.stderr)
+        elif args.action == "list":
+            reply = client.list()
+        elif args.action == "activate":
+            reply = client.activate(args.version, args.name)
+        elif args.action == "rollback":
+            reply = client.rollback()
+        else:
+            reply = _shadow(client, args)
+    except ModelClientError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        session.close()
+    _print_reply(reply, args.json)
+    return 0 if reply.ok else 1
+
+
+def _shadow(client, args: argparse.Namespace):  # noqa: ANN001, ANN202
+    if args.version == "off":
+        return client.shadow(None, args.name)
+    if args.version == "status":
+        return client.list()
+    return client.shadow(int(args.version), args.name)
+
+
+def _print_reply(reply, as_json: bool) -> None:  # noqa: ANN001
+    if as_json:
+        print(json.dumps(reply.model_dump(), indent=2))
+        return
+    if not reply.ok:
+        print(f"refused: {reply.reason}")
+        return
+    if reply.models:
+        for m in reply.models:
+            flags = " ".join(f for f, on in (("ACTIVE", m.active), ("SHADOW", m.shadow)) if on)
+            print(f"{m.name:>16} v{m.version:<4} {m.input_kind:<14} {m.size_bytes / 2**20:8.2f} MiB  {flags}")
+    elif reply.version:
+        print(f"accepted: {reply.name} v{reply.version} ({reply.reason})")
+    else:
+        print(f"ok {reply.reason}")
+    if reply.shadow is not None and reply.shadow.n:
+        s = reply.shadow
+        print(f"shadow {s.name} v{s.version}: n={s.n} mean {s.mean_diff_m:.3f} m, p95 {s.p95_diff_m:.3f} m, "
+              f"max {s.max_diff_m:.3f} m, yaw {s.yaw_mean_diff_deg:.2f} deg")

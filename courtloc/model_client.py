@@ -1,0 +1,89 @@
+"""Talking to a robot's model store over Zenoh: push (chunked, resumable), list, activate, rollback, shadow."""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Callable
+
+import zenoh
+
+from courtloc.common import codec
+from courtloc.common.control import (
+    Activate, FileSpec, ListModels, ModelReply, ModelRequest, PushBegin, PushChunk, PushCommit, Rollback, Shadow,
+)
+from courtloc.common.services_table import CONTROLS
+from courtloc.services.infer.store import MODEL_FILE, sha256_file
+
+log = logging.getLogger(__name__)
+CHUNK_TIMEOUT_S = 30.0
+
+
+class ModelClientError(RuntimeError):
+    pass
+
+
+def push_files(source: Path) -> dict[str, Path]:
+    """Store file name -> local path: a lone ONNX file becomes model.onnx; a package folder is sent flat."""
+    if source.is_dir():
+        files = {p.name: p for p in sorted(source.iterdir()) if p.is_file()}
+        if MODEL_FILE not in files:
+            raise ModelClientError(f"{source} has no {MODEL_FILE}")
+        return files
+    if source.is_file():
+        return {MODEL_FILE: source}
+    raise ModelClientError(f"{source} not found")
+
+
+class ModelClient:
+    def __init__(self, session: zenoh.Session, robot_id: str) -> None:
+        self.session = session
+        self.control = CONTROLS["infer/model"]
+        self.key = self.control.key(robot_id)
+
+    def request(self, body, timeout_s: float | None = None) -> ModelReply:  # noqa: ANN001
+        payload = codec.encode(ModelRequest(body=body))
+        replies = self.session.get(self.key, payload=payload, timeout=timeout_s or self.control.timeout_s)
+        for reply in replies:
+            if reply.ok is not None:
+                return codec.decode(bytes(reply.ok.payload), ModelReply)
+            raise ModelClientError(f"error reply: {reply.err.payload.to_string()}")
+        raise ModelClientError("no answer from the robot's infer service (is it running, and is this the right robot?)")
+
+    def push(self, source: Path, activate: bool = True, chunk_bytes: int = 4 << 20,
+             progress: Callable[[int, int], None] | None = None) -> ModelReply:
+        files = push_files(source)
+        specs = [FileSpec(path=name, size=path.stat().st_size, sha256=sha256_file(path)) for name, path in files.items()]
+        begun = self.request(PushBegin(files=specs))
+        if not begun.ok:
+            return begun
+        total = sum(s.size for s in specs)
+        done = sum(begun.received)
+        if done:
+            log.info("resuming push %s at %d of %d bytes", begun.upload_id, done, total)
+        for index, (spec, path) in enumerate(zip(specs, files.values())):
+            offset = begun.received[index]
+            with path.open("rb") as handle:
+                handle.seek(offset)
+                while offset < spec.size:
+                    data = handle.read(chunk_bytes)
+                    reply = self.request(PushChunk(upload_id=begun.upload_id, file_index=index, offset=offset,
+                                                   data=data), CHUNK_TIMEOUT_S)
+                    if not reply.ok:
+                        return reply
+                    offset += len(data)
+                    done += len(data)
+                    if progress is not None:
+                        progress(done, total)
+        return self.request(PushCommit(upload_id=begun.upload_id, activate=activate))
+
+    def list(self) -> ModelReply:
+        return self.request(ListModels())
+
+    def activate(self, version: int, name: str | None = None) -> ModelReply:
+        return self.request(Activate(name=name, version=version))
+
+    def rollback(self) -> ModelReply:
+        return self.request(Rollback())
+
+    def shadow(self, version: int | None, name: str | None = None) -> ModelReply:
+        return self.request(Shadow(name=name, version=version))

@@ -1,0 +1,33 @@
+"""Infer service settings."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+def default_store_path() -> Path:
+    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(base) / "courtloc" / "model-store"
+
+
+Provider = Literal["tensorrt", "cuda", "cpu"]
+
+
+class InferConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    store: Path = Field(default_factory=default_store_path,
+                        description="model repository: <store>/<name>/<version>/model.onnx")
+    providers: list[Provider] = Field(
+        default_factory=lambda: ["tensorrt", "cuda", "cpu"],
+        description="onnxruntime execution providers in order of preference; those not installed are skipped")
+    threads: int = Field(default=1, ge=1, le=64, description="onnxruntime intra-op threads")
+    golden_latency_budget_ms: float = Field(default=100.0, gt=0,
+                                            description="a candidate slower than this on golden inputs is refused")
+    on_court_margin_m: float = Field(default=0.5, ge=0, description="a pose further off the court is not valid")
+    require_signature: bool = Field(default=False, description="refuse pushed models without a valid signature")
+    signing_public_key: Path | None = None
+    max_upload_mb: float = Field(default=2048.0, gt=0)

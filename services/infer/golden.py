@@ -1,0 +1,50 @@
+"""Golden inputs for validating a candidate model: twin frames of its court, seen by its camera,
+at known poses, through the real preprocess stage. Made once per (court, camera) and kept."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# Poses spread over the court, facing lines (x, y, yaw); every court we ship contains them.
+GOLDEN_POSES: tuple[tuple[float, float, float], ...] = (
+    (-2.5, 1.0, 3.0), (2.0, -1.5, 0.4), (3.5, 1.8, -0.3), (-1.0, -2.0, 2.4), (0.8, 0.5, 1.57),
+)
+
+
+@dataclass(frozen=True)
+class GoldenFrame:
+    hits: np.ndarray
+    width: int
+    height: int
+    pose: tuple[float, float, float]
+
+
+class GoldenSets:
+    """Golden frames per (court, camera), rendered on first use."""
+
+    def __init__(self) -> None:
+        self._sets: dict[tuple[str, str], list[GoldenFrame]] = {}
+
+    def get(self, court_name: str, camera_name: str) -> list[GoldenFrame]:
+        key = (court_name, camera_name)
+        if key not in self._sets:
+            self._sets[key] = _render_golden(court_name, camera_name)
+        return self._sets[key]
+
+
+def _render_golden(court_name: str, camera_name: str) -> list[GoldenFrame]:
+    from courtloc.services.preprocess.config import PreprocessConfig
+    from courtloc.services.preprocess.pipeline import Preprocessor
+    from courtloc.sim.camera import load_camera
+    from courtloc.sim.court import load_court
+    from courtloc.sim.render import Renderer
+
+    camera = load_camera(camera_name)
+    renderer = Renderer(load_court(court_name), camera)
+    preprocessor = Preprocessor(PreprocessConfig(frame_width=camera.width, frame_height=camera.height))
+    frames = []
+    for pose in GOLDEN_POSES:
+        image = renderer.render(pose)
+        frames.append(GoldenFrame(preprocessor.process(image), camera.width, camera.height, pose))
+    return frames
