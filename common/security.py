@@ -16,9 +16,11 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from courtloc.common.services_table import PIT
+
 IDENTITY_PATTERN = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 MONITOR_IDENTITY = "monitor"  # read-only watcher on the robot (the launcher's status line)
-PIT_IDENTITY = "pit"  # the team's laptop: reads everything, the only one that may change models
+PIT_IDENTITY = PIT  # the team's laptop: reads everything, the only caller of model control
 
 
 class SecurityConfig(BaseModel):

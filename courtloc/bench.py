@@ -9,6 +9,11 @@ import importlib
 
 BENCHES: dict[str, str] = {
     "pipeline": "courtloc.bench_pipeline",
+    "preprocess": "courtloc.services.preprocess.bench",
+    "render": "courtloc.sim.bench_render",
+    "paper": "courtloc.localizer.model_bench",
+    "localize": "courtloc.localizer.bench",
+    "soak": "courtloc.bench_soak",
 }
 
 

@@ -18,6 +18,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "courtloc.model_cli",
     "courtloc.training.cli",
     "courtloc.localizer.eval_cli",
+    "courtloc.localizer.cli",
     "courtloc.services.preprocess.cli",
     "courtloc.security.cli",
     "courtloc.recording.cli",

@@ -9,7 +9,7 @@ import importlib
 from pathlib import Path
 from typing import Callable
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.config_loader import load_model, resolve_relative_paths
@@ -52,6 +52,8 @@ class DeploymentConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     robot_id: str = "robot1"
+    court: str = Field(default="seed-gazebo", description="the court every stage assumes unless its own "
+                       "section names one (sim camera, shooter target)")
     zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
     router: RouterConfig = Field(default_factory=RouterConfig)
     launcher: LauncherConfig = Field(default_factory=LauncherConfig)
@@ -59,6 +61,16 @@ class DeploymentConfig(BaseModel):
     preprocess: PreprocessConfig = Field(default_factory=PreprocessConfig)
     infer: InferConfig = Field(default_factory=InferConfig)
     shooter_bridge: ShooterConfig = Field(default_factory=ShooterConfig)
+
+    @model_validator(mode="after")
+    def _one_court_by_default(self) -> "DeploymentConfig":
+        if "court" not in self.camera.sim.model_fields_set:
+            self.camera.sim = self.camera.sim.model_copy(update={"court": self.court})
+        target = self.shooter_bridge.target
+        if "court" not in target.model_fields_set and target.ring is None:
+            self.shooter_bridge = self.shooter_bridge.model_copy(
+                update={"target": target.model_copy(update={"court": self.court})})
+        return self
 
     @field_validator("robot_id")
     @classmethod

@@ -12,6 +12,7 @@ from courtloc.common.control import (
     Activate, FileSpec, ListModels, ModelReply, ModelRequest, PushBegin, PushChunk, PushCommit, Rollback, Shadow,
 )
 from courtloc.common.services_table import CONTROLS
+from courtloc.security.signing import signature_path
 from courtloc.services.infer.store import MODEL_FILE, sha256_file
 
 log = logging.getLogger(__name__)
@@ -30,7 +31,11 @@ def push_files(source: Path) -> dict[str, Path]:
             raise ModelClientError(f"{source} has no {MODEL_FILE}")
         return files
     if source.is_file():
-        return {MODEL_FILE: source}
+        files = {MODEL_FILE: source}
+        signature = signature_path(source)
+        if signature.is_file():  # a signed model travels with its signature
+            files[signature_path(Path(MODEL_FILE)).name] = signature
+        return files
     raise ModelClientError(f"{source} not found")
 
 

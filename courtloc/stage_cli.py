@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import signal
 import sys
@@ -50,12 +51,24 @@ def run_router(args: argparse.Namespace) -> int:
         print(exc, file=sys.stderr)
         return 2
     listen = args.listen or config.router.listen
-    router_cfg = ZenohConfig(mode="router", connect=[], listen=listen, config_file=config.zenoh.config_file)
+    router_cfg = ZenohConfig(mode="router", connect=config.router.connect, listen=listen,
+                             config_file=config.zenoh.config_file)
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        session = zenoh.open(build_zenoh_config(router_cfg))
+        zcfg = build_zenoh_config(router_cfg)
+        if config.router.secure_dir is not None:
+            from courtloc.common.security import router_settings
+            from courtloc.security.acl import access_control
+
+            for path, value in {**router_settings(config.router.secure_dir),
+                                "access_control": access_control(config.robot_id)}.items():
+                zcfg.insert_json5(path, json.dumps(value))
+        session = zenoh.open(zcfg)
+    except ValueError as exc:  # a missing credential file
+        print(f"router: {exc}", file=sys.stderr)
+        return 2
     except zenoh.ZError as exc:
         print(f"router: cannot listen on {listen}: {str(exc).split(' at ')[0]}", file=sys.stderr)
         return 1

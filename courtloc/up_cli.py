@@ -27,6 +27,10 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(exc, file=sys.stderr)
         return 2
+    if not config.launcher.services:
+        print(f"{args.config}: [launcher] services is empty: nothing to start here "
+              "(this is a pit profile: use `courtloc monitor` or `courtloc model ...`)", file=sys.stderr)
+        return 2
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())

@@ -9,6 +9,7 @@ import math
 import queue
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -39,9 +40,11 @@ class WatchState:
     alive: set[str] = field(default_factory=set)
     counts: dict[str, int] = field(default_factory=dict)
     valid_counts: dict[str, int] = field(default_factory=dict)
-    e2e_ns: list[int] = field(default_factory=list)
+    # Bounded, so a long `courtloc up` does not grow: ~55 min of samples at 30 Hz; the maximum is kept apart.
+    e2e_ns: deque[int] = field(default_factory=lambda: deque(maxlen=100_000))
+    e2e_max_ns: int = 0
     truths: dict[int, GroundTruth] = field(default_factory=dict)
-    pose_errors_m: list[float] = field(default_factory=list)
+    pose_errors_m: deque[float] = field(default_factory=lambda: deque(maxlen=100_000))
     last_pose: Pose | None = None
     last_solution: ShotSolution | None = None
     undecodable: int = 0
@@ -134,7 +137,9 @@ class BusWatcher:
                 now = time.monotonic()
                 self._first_e2e = self._first_e2e or now
                 if now - self._first_e2e >= self.warmup_s:
-                    state.e2e_ns.append(header.span_ns())
+                    span = header.span_ns()
+                    state.e2e_ns.append(span)
+                    state.e2e_max_ns = max(state.e2e_max_ns, span)
             if isinstance(message, GroundTruth):
                 state.truths[header.seq] = message
                 if len(state.truths) > _MAX_TRUTHS:
@@ -169,18 +174,18 @@ class BusWatcher:
                 yaw = "" if pose.yaw is None else f" {math.degrees(pose.yaw):+6.1f}deg"
                 parts.append(f"pose ({pose.x:+.2f},{pose.y:+.2f}){yaw}{'' if pose.header.valid else ' INVALID'}")
             if state.pose_errors_m:
-                parts.append(f"err {np.median(state.pose_errors_m[-60:]):.3f} m")
+                parts.append(f"err {np.median(list(state.pose_errors_m)[-60:]):.3f} m")
             sol = state.last_solution
             if sol is not None:
                 parts.append(f"rpm {sol.rpm:.0f} {sol.command}" + (f" ({sol.reason})" if sol.reason else ""))
             if state.e2e_ns:
-                parts.append(f"e2e p50 {np.median(state.e2e_ns[-300:]) / 1e6:.1f} ms")
+                parts.append(f"e2e p50 {np.median(list(state.e2e_ns)[-300:]) / 1e6:.1f} ms")
         return " | ".join(parts)
 
     def summary(self, restarts: dict[str, int], duration_s: float) -> dict[str, Any]:
         with self._lock:
             state = self.state
-            e2e = np.asarray(state.e2e_ns, dtype=np.float64) / 1e6
+            e2e = np.fromiter(state.e2e_ns, dtype=np.float64) / 1e6
             stages = {
                 name: {
                     **{k: getattr(h, k) for k in ("frames_in", "frames_out", "rate_in_hz", "rate_out_hz",
@@ -191,7 +196,7 @@ class BusWatcher:
                 }
                 for name, h in state.health.items()
             }
-            errors = np.asarray(state.pose_errors_m)
+            errors = np.fromiter(state.pose_errors_m, dtype=np.float64)
             return {
                 "robot_id": self.config.robot_id,
                 "duration_s": round(duration_s, 3),
@@ -206,7 +211,7 @@ class BusWatcher:
                     "topic": self.e2e_topic, "n": int(e2e.size), "warmup_s": self.warmup_s,
                     "p50": float(np.percentile(e2e, 50)) if e2e.size else None,
                     "p99": float(np.percentile(e2e, 99)) if e2e.size else None,
-                    "max": float(e2e.max()) if e2e.size else None,
+                    "max": state.e2e_max_ns / 1e6 if e2e.size else None,
                 },
                 "pose_error_m": {
                     "n": int(errors.size),

@@ -119,9 +119,12 @@ def start_stage(name: str, config_path: Path, verbose: bool = True) -> Proc:
 class BusClient:
     """A test's own Zenoh client on the router: await messages and liveliness, inject payloads."""
 
-    def __init__(self, port: int, robot_id: str = "robot1") -> None:
+    def __init__(self, port: int, robot_id: str = "robot1", reconnect_max_s: float | None = None) -> None:
         self.robot_id = robot_id
-        self.session = open_session(ZenohConfig(mode="client", connect=[endpoint(port)]))
+        # reconnect_max_s: a short back-off so the client itself is not the slow part after a router restart
+        retry = {} if reconnect_max_s is None else {"open_retry_s": reconnect_max_s / 2,
+                                                    "open_retry_max_s": reconnect_max_s}
+        self.session = open_session(ZenohConfig(mode="client", connect=[endpoint(port)], **retry))
         self._queues: dict[str, queue.Queue] = {}
         self._subs: list[Any] = []
         self._alive: set[str] = set()

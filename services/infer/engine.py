@@ -113,11 +113,15 @@ def check_graph_signature(path: Path, manifest) -> None:  # noqa: ANN001
 def _check_signature_file(folder: Path, config: InferConfig) -> None:
     if not config.require_signature:
         return
-    from courtloc.services.infer.signing import verify_folder
+    from courtloc.security.signing import ModelSignatureError, signature_path, verify_model
 
-    reason = verify_folder(folder, config.signing_public_key)
-    if reason:
-        raise ModelRefused(f"signature: {reason}")
+    if config.signing_public_key is None:
+        raise ModelRefused("signature required but no signing_public_key is configured")
+    model = folder / "model.onnx"
+    try:
+        verify_model(model, signature_path(model), config.signing_public_key)
+    except ModelSignatureError as exc:
+        raise ModelRefused(f"signature: {exc}") from None
 
 
 def _run_golden(model: LoadedModel, config: InferConfig, golden: GoldenSets) -> None:

@@ -23,6 +23,7 @@ from courtloc.services.infer.model_control import ModelControl
 from courtloc.services.infer.shadow import ShadowRunner
 from courtloc.services.infer.store import ModelRef, ModelStore, StoredModel
 from courtloc.services.infer.uploads import Uploads
+from courtloc.services.preprocess.pipeline import hits_from_bytes
 
 DEFAULT_MODEL_NAME = "default"
 
@@ -32,10 +33,10 @@ def bundled_default() -> Path:
 
 
 def hits_of(edges: Edges) -> np.ndarray:
-    hits = np.frombuffer(edges.hits, dtype="<i2")
-    if hits.size != edges.n_hits * 4:
-        raise ValueError(f"{hits.size} int16 values for {edges.n_hits} hits")
-    return hits.reshape(-1, 4)
+    hits = hits_from_bytes(edges.hits)
+    if len(hits) != edges.n_hits:
+        raise ValueError(f"{len(hits)} hits in the payload, the header says {edges.n_hits}")
+    return hits
 
 
 class InferService(Service):

@@ -1,0 +1,144 @@
+"""soak: RSS growth and latency drift of a running `courtloc up` over minutes or hours
+
+Starts `courtloc up` as its own process (exactly what runs on the robot), watches the bus, and every
+window samples each process's resident memory and the chain's end-to-end latency. The report gives
+per-process RSS growth (first to last window, and a least-squares slope in MB/hour) and the drift of
+the latency p50/p99 (slope in ms/hour), plus every window so a plot is one step away.
+Not run in CI: it is meant for `--minutes 60` on the robot.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in)")
+    parser.add_argument("--minutes", type=float, default=10.0, help="how long to run")
+    parser.add_argument("--window-s", type=float, default=10.0, help="one sample of RSS and latency per window")
+    parser.add_argument("--json", type=Path, default=None, help="write the report here")
+
+
+def child_processes(parent: int) -> dict[str, int]:
+    """The launcher's children by role: 'router' or the stage name (from their command lines)."""
+    found: dict[str, int] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            argv = [a.decode() for a in (entry / "cmdline").read_bytes().split(b"\0") if a]
+        except OSError:
+            continue  # exited meanwhile
+        if int(stat.rsplit(")", 1)[1].split()[1]) != parent:
+            continue
+        if "router" in argv:
+            found["router"] = int(entry.name)
+        elif "run" in argv and argv.index("run") + 1 < len(argv):
+            found[argv[argv.index("run") + 1]] = int(entry.name)
+    return found
+
+
+def rss_mb(pid: int) -> float | None:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def _slope_per_hour(times_s: list[float], values: list[float | None]) -> float | None:
+    pairs = [(t, v) for t, v in zip(times_s, values) if v is not None]
+    if len(pairs) < 3:
+        return None
+    t, v = np.asarray(pairs, dtype=np.float64).T
+    return float(np.polyfit(t / 3600.0, v, 1)[0])
+
+
+def _percentile(values_ns: list[int], q: float) -> float | None:
+    return float(np.percentile(np.asarray(values_ns) / 1e6, q)) if values_ns else None
+
+
+def run(args: argparse.Namespace) -> int:
+    from courtloc.deployment import load_deployment
+    from courtloc.watch import BusWatcher
+
+    config = load_deployment(args.config)
+    argv = [sys.executable, "-m", "courtloc", "up", *(["--config", str(args.config)] if args.config else [])]
+    up = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    watcher = BusWatcher(config)
+    watcher.start(stop)
+    started = time.monotonic()
+    windows: list[dict] = []
+    seen_pids: dict[str, set[int]] = {}
+    taken = 0
+    try:
+        while not stop.wait(args.window_s) and up.poll() is None:
+            elapsed = time.monotonic() - started
+            with watcher._lock:  # noqa: SLF001 - the watcher's own lock guards its state
+                latencies = list(watcher.state.e2e_ns[taken:])
+                taken = len(watcher.state.e2e_ns)
+            procs = {"launcher": up.pid, **child_processes(up.pid)}
+            for role, pid in procs.items():
+                seen_pids.setdefault(role, set()).add(pid)
+            window = {"t_s": round(elapsed, 1), "rss_mb": {r: rss_mb(p) for r, p in procs.items()},
+                      "e2e_n": len(latencies), "e2e_p50_ms": _percentile(latencies, 50),
+                      "e2e_p99_ms": _percentile(latencies, 99)}
+            windows.append(window)
+            print(json.dumps(window), file=sys.stderr, flush=True)
+            if elapsed >= args.minutes * 60:
+                break
+    finally:
+        watcher.close()
+        up.send_signal(signal.SIGTERM)
+        try:
+            up.wait(30)
+        except subprocess.TimeoutExpired:
+            up.kill()
+    report = summarise(windows, seen_pids, e2e_topic=watcher.e2e_topic)
+    text = json.dumps(report, indent=2)
+    print(text)
+    if args.json is not None:
+        args.json.write_text(text)
+    return 0 if windows else 1
+
+
+def summarise(windows: list[dict], seen_pids: dict[str, set[int]], e2e_topic: str) -> dict:
+    """Growth and drift, leaving out the first window (imports, model load and caches warming up)."""
+    steady = windows[1:] if len(windows) > 2 else windows
+    times = [w["t_s"] for w in steady]
+    roles = sorted({r for w in windows for r in w["rss_mb"]})
+    rss = {}
+    for role in roles:
+        series = [w["rss_mb"].get(role) for w in steady]
+        present = [v for v in series if v is not None]
+        rss[role] = {
+            "first_mb": present[0] if present else None, "last_mb": present[-1] if present else None,
+            "growth_mb": (present[-1] - present[0]) if present else None,
+            "slope_mb_per_h": _slope_per_hour(times, series),
+            "restarts": max(0, len(seen_pids.get(role, ())) - 1),
+        }
+    return {
+        "windows": len(windows), "duration_s": windows[-1]["t_s"] if windows else 0.0, "e2e_topic": e2e_topic,
+        "rss": rss,
+        "e2e_p50_ms": {"first": steady[0]["e2e_p50_ms"] if steady else None,
+                       "last": steady[-1]["e2e_p50_ms"] if steady else None,
+                       "slope_ms_per_h": _slope_per_hour(times, [w["e2e_p50_ms"] for w in steady])},
+        "e2e_p99_ms": {"first": steady[0]["e2e_p99_ms"] if steady else None,
+                       "last": steady[-1]["e2e_p99_ms"] if steady else None,
+                       "slope_ms_per_h": _slope_per_hour(times, [w["e2e_p99_ms"] for w in steady])},
+        "series": windows,
+    }

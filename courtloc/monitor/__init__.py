@@ -1,0 +1,1 @@
+"""`courtloc monitor`: a live web page of one robot, served from the pit laptop."""

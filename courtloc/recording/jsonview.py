@@ -1,0 +1,111 @@
+"""The JSON view of bus messages, as Foxglove and other MCAP tools read it.
+
+Foxglove's JSON encoding wants standard base64 strings for binary fields, flagged in the schema with
+`"contentEncoding": "base64"`; pydantic's own base64 is the URL-safe alphabet, so bytes are converted
+here. JSON has no NaN or infinity: non-finite floats become null in the view (the msgpack copy keeps
+them exactly).
+
+Frames are the exception to "the view is the courtloc message": a base64 blob helps nobody, so a
+Frame's view is Foxglove's own image message (`foxglove.CompressedImage` for JPEG, `foxglove.RawImage`
+for raw BGR), which Foxglove's Image panel shows. The full Frame, header included, stays on the
+msgpack channel.
+"""
+from __future__ import annotations
+
+import base64
+import json
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Any
+
+from pydantic import BaseModel
+
+from courtloc.common.messages import Frame
+
+_BASE64 = {"type": "string", "contentEncoding": "base64"}
+_TIME = {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0},
+                                          "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}}}
+# The fields Foxglove documents for its image schemas (JSON encoding).
+FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
+    "foxglove.CompressedImage": {"type": "object", "title": "foxglove.CompressedImage", "properties": {
+        "timestamp": _TIME, "frame_id": {"type": "string"}, "data": _BASE64, "format": {"type": "string"}}},
+    "foxglove.RawImage": {"type": "object", "title": "foxglove.RawImage", "properties": {
+        "timestamp": _TIME, "frame_id": {"type": "string"}, "width": {"type": "integer"},
+        "height": {"type": "integer"}, "encoding": {"type": "string"}, "step": {"type": "integer"}, "data": _BASE64}},
+}
+
+
+@dataclass(frozen=True)
+class JsonView:
+    schema_name: str
+    data: bytes
+
+    @property
+    def schema(self) -> bytes:
+        return schema_data(self.schema_name)
+
+
+def schema_name(message_type: type[BaseModel]) -> str:
+    return f"courtloc.{message_type.__name__}"
+
+
+def _message_types() -> dict[str, type[BaseModel]]:
+    from courtloc.common.services_table import TOPICS
+
+    return {schema_name(t.message): t.message for t in TOPICS.values()}
+
+
+@lru_cache(maxsize=None)
+def schema_data(name: str) -> bytes:
+    """JSON Schema bytes of a courtloc message type or of a Foxglove image type, by schema name."""
+    if name in FOXGLOVE_SCHEMAS:
+        return json.dumps(FOXGLOVE_SCHEMAS[name], sort_keys=True).encode()
+    message_type = _message_types()[name]
+    schema = message_type.model_json_schema(mode="serialization")
+    schema["title"] = name
+    return json.dumps(_mark_binary(schema), sort_keys=True).encode()
+
+
+def _mark_binary(node: Any) -> Any:
+    if isinstance(node, dict):
+        if node.get("type") == "string" and node.get("format") in ("binary", "base64", "base64url"):
+            node = {k: v for k, v in node.items() if k != "format"}
+            node["contentEncoding"] = "base64"
+        return {k: _mark_binary(v) for k, v in node.items()}
+    if isinstance(node, list):
+        return [_mark_binary(v) for v in node]
+    return node
+
+
+def json_view(message: BaseModel, source: str = "camera") -> JsonView:
+    """The view of one message; `source` becomes a Frame's `frame_id` (the topic's service)."""
+    if isinstance(message, Frame):
+        return _image_view(message, source)
+    return JsonView(schema_name(type(message)), _dumps(_jsonable(message.model_dump())))
+
+
+def _image_view(frame: Frame, source: str) -> JsonView:
+    wall = frame.header.capture_wall_ns
+    body: dict[str, Any] = {"timestamp": {"sec": wall // 1_000_000_000, "nsec": wall % 1_000_000_000},
+                            "frame_id": source, "data": base64.b64encode(frame.data).decode("ascii")}
+    if frame.encoding == "jpeg":
+        return JsonView("foxglove.CompressedImage", _dumps({**body, "format": "jpeg"}))
+    return JsonView("foxglove.RawImage", _dumps({**body, "width": frame.width, "height": frame.height,
+                                                 "encoding": "bgr8", "step": frame.width * 3}))
+
+
+def _dumps(value: Any) -> bytes:
+    return json.dumps(value, separators=(",", ":"), allow_nan=False).encode()
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (bytes, bytearray, memoryview)):
+        return base64.b64encode(bytes(value)).decode("ascii")
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

@@ -1,0 +1,65 @@
+"""Settings of the geometric localizer (validated at load; a bad value fails with the field's name)."""
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+SymmetryMode = Literal["half", "previous", "both"]
+Half = Literal["+x", "-x"]
+
+
+class FitConfig(BaseModel):
+    """Robust Gauss-Newton fit of (x, y, yaw) to the court's distance field."""
+
+    model_config = ConfigDict(extra="forbid")
+    pixel_sigma: float = Field(1.0, gt=0, description="hit position noise in pixels")
+    floor_sigma_m: float = Field(0.005, gt=0, description="court-model error floor in metres")
+    tilt_sigma_deg: float = Field(0.1, ge=0, description="prior std of the body's per-frame pitch and roll "
+                                  "(0: assume a rigid, level camera)")
+    range_sigma: float = Field(0.0, ge=0, description="model error per metre of range")
+    tukey_c: float = Field(4.0, gt=0, description="Tukey biweight cut-off in sigmas")
+    huber_c: float = Field(2.0, gt=0, description="Huber threshold in sigmas for the first iterations")
+    huber_iterations: int = Field(2, ge=0, description="Huber iterations before switching to Tukey")
+    max_iterations: int = Field(6, ge=1)
+    max_residual_m: float = Field(0.5, gt=0, description="hits farther than this from paint are ignored")
+    gate_cos: float = Field(-0.2, ge=-1, le=1,
+                            description="min cos between the scan ray and the edge normal (far edges only)")
+    step_tol_m: float = Field(5e-4, gt=0, description="stop when a step moves less than this")
+
+
+class QualityConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    inlier_sigmas: float = Field(3.0, gt=0, description="|residual| below this many sigmas is an inlier")
+    min_inliers: int = Field(12, ge=3)
+    min_inlier_ratio: float = Field(0.35, ge=0, le=1)
+    max_position_std_m: float = Field(0.08, gt=0, description="worst-direction position std (degeneracy)")
+    max_yaw_std_deg: float = Field(1.0, gt=0)
+
+
+class SearchConfig(BaseModel):
+    """Global (cold-start) search on a coarse, clipped distance field."""
+
+    model_config = ConfigDict(extra="forbid")
+    coarse_factor: int = Field(10, ge=1, description="coarse cell = factor x fine cell")
+    clip_m: float = Field(0.4, gt=0)
+    yaw_step_deg: float = Field(3.0, gt=0, le=30)
+    max_points: int = Field(40, ge=4, description="hits used by the coarse search (nearest ranges first)")
+    max_range_m: float = Field(6.0, gt=0)
+    candidates: int = Field(8, ge=1, description="coarse minima refined")
+    area_margin_m: float = Field(0.0, description="search |x|,|y| up to the court's robot area + this")
+
+
+class LocalizerConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    field_resolution_m: float = Field(0.01, gt=0, le=0.05)
+    edge_offset_px: float = Field(0.2, description="hits sit this far beyond the paint edge along the image ray")
+    max_range_m: float = Field(12.0, gt=0)
+    symmetry: SymmetryMode = "previous"
+    half: Half = Field("+x", description="the robot's half, used by 'half' mode and to start 'previous' mode")
+    centre_margin_m: float = Field(0.3, ge=0,
+                                   description="within this of x=0 the half rule picks by heading instead")
+    track_max_jump_m: float = Field(0.5, gt=0, description="a tracked pose moving more than this is re-checked")
+    fit: FitConfig = FitConfig()
+    quality: QualityConfig = QualityConfig()
+    search: SearchConfig = SearchConfig()

@@ -1,0 +1,107 @@
+"""The geometric localizer: floor points of a frame's hits -> court pose (x, y, yaw) with a quality.
+
+Tracking when a previous pose is given: one robust fit from it, accepted when valid and it did not jump;
+else a few restarts nearby; a frame that still fails is returned invalid (no global jump). Without a
+previous pose, a global search (search.py) proposes candidates, each is refined, the best robust cost
+wins. The symmetry rule (symmetry.py) then picks between the answer and its mirror twin.
+Stateless: the caller passes the previous pose, so one instance can serve any number of robots.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from courtloc.localizer.config import LocalizerConfig
+from courtloc.localizer.court_field import CourtField
+from courtloc.localizer.fit import FitResult, fit_pose
+from courtloc.localizer.projection import HitGeometry, ProjectedHits
+from courtloc.localizer.search import CoarseSearch
+from courtloc.localizer.symmetry import by_half, by_previous, mirror
+from courtloc.sim.camera import CameraModel
+from courtloc.sim.court import Court
+
+
+# Restarts around the previous pose when the plain tracking fit fails: (dx m, dy m, dyaw rad).
+_TRACK_RESTARTS = [(0.0, 0.0, 0.07), (0.0, 0.0, -0.07), (0.25, 0.0, 0.0), (-0.25, 0.0, 0.0), (0.0, 0.25, 0.0),
+                   (0.0, -0.25, 0.0)]
+
+
+@dataclass(frozen=True)
+class LocalizeResult:
+    pose: np.ndarray  # (3,) x, y metres, yaw rad
+    fit: FitResult
+    mode: str  # "track" or "global"
+    alternatives: list[np.ndarray] = field(default_factory=list)  # the mirror twin in "both" mode
+
+    @property
+    def valid(self) -> bool:
+        return self.fit.valid
+
+    @property
+    def quality(self) -> float:
+        return self.fit.quality
+
+
+class GeometricLocalizer:
+    def __init__(self, court: Court, camera: CameraModel, config: LocalizerConfig | None = None,
+                 field: CourtField | None = None) -> None:
+        self.config = config or LocalizerConfig()
+        self.court = court
+        self.camera = camera
+        # `field` lets variants of one court (e.g. while tuning) share the ~1 s build.
+        self.field = field or CourtField.from_court(court, self.config.field_resolution_m)
+        self.geometry = HitGeometry(camera)
+        self.search = CoarseSearch(self.field, court.area_half_extent_m, self.config.search)
+
+    def localize_points(self, floor_points: np.ndarray, previous: np.ndarray | None = None) -> LocalizeResult:
+        """Pose from (N, 2) robot-frame floor points (NaN rows ignored)."""
+        return self.localize(self.geometry.from_points(floor_points), previous)
+
+    def localize(self, hits: ProjectedHits, previous: np.ndarray | None = None) -> LocalizeResult:
+        """With `previous`: track (never a global jump); without: global search."""
+        cfg = self.config
+        if previous is not None:
+            prev = np.asarray(previous, np.float64)
+            return self._finish(self._track(hits, prev), "track", prev)
+        best: FitResult | None = None
+        for start in self.search.candidates(hits):
+            res = fit_pose(self.field, hits, start, cfg.fit, cfg.quality)
+            if best is None or (res.valid, -res.cost) > (best.valid, -best.cost):
+                best = res
+        if best is None:  # no hits at all
+            best = fit_pose(self.field, hits, np.zeros(3), cfg.fit, cfg.quality)
+        return self._finish(best, "global", None)
+
+    def _track(self, hits: ProjectedHits, prev: np.ndarray) -> FitResult:
+        """Fit from the previous pose; if that fails, a few nearby starts (the robot cannot teleport).
+
+        A frame that still fails comes back invalid rather than replaced by a global search: a lone
+        ambiguous frame must not throw the track across the court. The caller keeps its last valid pose
+        and drops it when stale (then the next call searches globally).
+        """
+        cfg = self.config
+        first = fit_pose(self.field, hits, prev, cfg.fit, cfg.quality)
+        if first.valid and math.hypot(*(first.pose[:2] - prev[:2])) <= cfg.track_max_jump_m:
+            return first
+        best = first
+        for dx, dy, dyaw in _TRACK_RESTARTS:
+            res = fit_pose(self.field, hits, prev + (dx, dy, dyaw), cfg.fit, cfg.quality)
+            ok = res.valid and math.hypot(*(res.pose[:2] - prev[:2])) <= cfg.track_max_jump_m
+            best_ok = best.valid and math.hypot(*(best.pose[:2] - prev[:2])) <= cfg.track_max_jump_m
+            if (ok, -res.cost) > (best_ok, -best.cost):
+                best = res
+        if best.valid and math.hypot(*(best.pose[:2] - prev[:2])) > cfg.track_max_jump_m:
+            best = FitResult(**{**best.__dict__, "valid": False, "quality": min(best.quality, 0.49)})
+        return best
+
+    def _finish(self, fit: FitResult, mode: str, previous: np.ndarray | None) -> LocalizeResult:
+        cfg = self.config
+        if cfg.symmetry == "half" or previous is None:
+            pose = by_half(fit.pose, cfg.half, cfg.centre_margin_m)
+        else:
+            pose = by_previous(fit.pose, previous)
+        fit = FitResult(**{**fit.__dict__, "pose": pose})
+        alternatives = [mirror(pose)] if cfg.symmetry == "both" else []
+        return LocalizeResult(pose=pose, fit=fit, mode=mode, alternatives=alternatives)

@@ -1,0 +1,168 @@
+"""The model manifest: what a model expects and what it gives, stored inside its ONNX file.
+
+The manifest is JSON in the ONNX model's `metadata_props` under the key `courtloc.manifest`, so the
+file alone says how to feed it (input kind, tensor names/shapes, preprocessing), what comes out
+(names, units), what court and camera it assumes, what it was trained on and how well it did.
+
+`weights_sha256` is defined as: sha256 over every graph initializer, in graph order, of
+    name (utf-8) + b"\\0" + dtype name (numpy, e.g. "float32") + b"\\0" + shape ("179200x1024") + b"\\0"
+    + the tensor's little-endian C-order bytes (numpy_helper.to_array(...).tobytes()).
+It ignores metadata (so writing the manifest does not change it) and how the tensors are stored
+(raw_data, typed fields or external data). `verify_weights` recomputes and compares it.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Literal, Optional, Union
+
+from pydantic import BaseModel, ConfigDict, Field
+
+MANIFEST_KEY = "courtloc.manifest"
+SCHEMA = "courtloc.manifest/1"
+
+# 'dense_image': the paper's crop as float32 [1, H, W]; 'sparse_hits': indices + values of its non-zero
+# pixels; 'scan_hits': the radial scan's int16 [K, 4] (row, col, ray, d) hits (geometric localizer).
+# Extend this Literal when a new kind of model input appears.
+InputKind = Literal["dense_image", "sparse_hits", "scan_hits"]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class TensorSpec(_Strict):
+    name: str
+    dtype: str  # numpy dtype name: float32, int64 ...
+    shape: list[Union[int, str]]  # str for a symbolic dimension, e.g. "K" hits
+
+
+class InputSpec(_Strict):
+    kind: InputKind
+    tensors: list[TensorSpec] = Field(min_length=1)
+    description: str = ""
+
+
+class HsvRange(_Strict):
+    lower: tuple[int, int, int]
+    upper: tuple[int, int, int]
+
+
+class PreprocessSpec(_Strict):
+    """The preprocessing the model was trained behind; a mismatch at load time is a reason to refuse it."""
+
+    frame_width: int = 640
+    frame_height: int = 480
+    hsv_ranges: list[HsvRange] = Field(default_factory=list)
+    scan_step_deg: float = 2.0
+    scan_origin: tuple[float, float] = (320.0, 480.0)  # (col, row): bottom-centre pixel
+    crop_top: int = 200
+    dot_radius: int = 2
+    dot_threshold: int = 128  # applied to stored (JPEG) dot images before use
+    scale: str = "0/1 dot image as float32 in [0, 1]"
+
+
+class OutputSpec(_Strict):
+    name: str
+    components: list[str]
+    units: list[str]
+
+
+class TrainingData(_Strict):
+    fingerprint: str  # courtloc.localizer.datasets.Dataset.fingerprint over the training frames
+    recordings: list[str] = Field(default_factory=list)
+    n_frames: int = 0
+    description: str = ""
+
+
+class Manifest(_Strict):
+    schema_: str = Field(default=SCHEMA, alias="schema")
+    name: str
+    version: int = Field(ge=0)
+    input: InputSpec
+    preprocessing: PreprocessSpec = Field(default_factory=PreprocessSpec)
+    court: str
+    camera: str
+    outputs: list[OutputSpec] = Field(min_length=1)
+    training_data: Optional[TrainingData] = None
+    metrics: dict[str, dict[str, float]] = Field(default_factory=dict)  # split name -> PoseMetrics dict
+    weights_sha256: str = ""
+    extra: dict[str, Union[str, float, int, bool]] = Field(default_factory=dict)
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+    def to_json(self) -> str:
+        return self.model_dump_json(by_alias=True)
+
+
+class ManifestError(ValueError):
+    """A model file without a readable manifest, or whose weights do not match it."""
+
+
+def weights_sha256(model: "onnx.ModelProto") -> str:  # noqa: F821 - onnx imported lazily
+    from onnx import numpy_helper
+
+    digest = hashlib.sha256()
+    for tensor in model.graph.initializer:
+        array = numpy_helper.to_array(tensor)
+        little = array.astype(array.dtype.newbyteorder("<"), copy=False)
+        shape = "x".join(str(d) for d in array.shape)
+        digest.update(f"{tensor.name}\0{array.dtype.name}\0{shape}\0".encode())
+        digest.update(little.tobytes(order="C"))
+    return digest.hexdigest()
+
+
+def _load(onnx_path: Path, with_weights: bool) -> "onnx.ModelProto":  # noqa: F821
+    import onnx
+
+    if not Path(onnx_path).is_file():
+        raise ManifestError(f"model file not found: {onnx_path}")
+    return onnx.load(str(onnx_path), load_external_data=with_weights)
+
+
+def manifest_from_model(model: "onnx.ModelProto") -> Manifest:  # noqa: F821
+    for prop in model.metadata_props:
+        if prop.key == MANIFEST_KEY:
+            try:
+                return Manifest.model_validate(json.loads(prop.value))
+            except (ValueError, TypeError) as exc:
+                raise ManifestError(f"bad manifest: {exc}") from exc
+    raise ManifestError(f"no '{MANIFEST_KEY}' entry in the model's metadata_props")
+
+
+def read_manifest(onnx_path: Path) -> Manifest:
+    """The manifest of an ONNX file (weights are not checked; see verify_weights)."""
+    return manifest_from_model(_load(onnx_path, with_weights=False))
+
+
+def attach_manifest(model: "onnx.ModelProto", manifest: Manifest) -> Manifest:  # noqa: F821
+    """Set the manifest (with weights_sha256 computed from `model`) into the in-memory model."""
+    final = manifest.model_copy(update={"weights_sha256": weights_sha256(model)})
+    kept = [p for p in model.metadata_props if p.key != MANIFEST_KEY]
+    del model.metadata_props[:]
+    model.metadata_props.extend(kept)
+    entry = model.metadata_props.add()
+    entry.key, entry.value = MANIFEST_KEY, final.to_json()
+    return final
+
+
+def write_manifest(onnx_path: Path, manifest: Manifest) -> Manifest:
+    """Store `manifest` in the file (replacing any old one); returns it with weights_sha256 filled in."""
+    import onnx
+
+    model = _load(onnx_path, with_weights=True)
+    final = attach_manifest(model, manifest)
+    onnx.save(model, str(onnx_path))
+    return final
+
+
+def verify_weights(onnx_path: Path) -> Manifest:
+    """Read the manifest and check the file's weights against its weights_sha256; raise on mismatch."""
+    model = _load(onnx_path, with_weights=True)
+    manifest = manifest_from_model(model)
+    actual = weights_sha256(model)
+    if manifest.weights_sha256 != actual:
+        raise ManifestError(f"{onnx_path}: weights sha256 {actual[:12]}... does not match the manifest's "
+                            f"{manifest.weights_sha256[:12] or '(empty)'}...")
+    return manifest

@@ -1,0 +1,85 @@
+"""Global (cold-start) pose search: every yaw step x every coarse translation, then top-k refined.
+
+Cost of a pose = sum over hits of the clipped |distance to paint| on a coarse grid. For one yaw the
+rotated hits are fixed offsets, so the cost of *all* translations on the grid is a sum of shifted copies
+of the coarse field: one array add per hit and yaw, no per-pose work. Yaw runs over [0, 180) only: the
+court is point-symmetric, so (x, y, yaw + 180) is the mirror (-x, -y) of a pose already searched; the
+caller picks between the two (symmetry.py).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from courtloc.localizer.config import SearchConfig
+from courtloc.localizer.court_field import CourtField
+from courtloc.localizer.projection import ProjectedHits
+
+
+class CoarseSearch:
+    def __init__(self, field: CourtField, area_half_extent: tuple[float, float], cfg: SearchConfig) -> None:
+        self.cfg = cfg
+        coarse = field.coarse(cfg.coarse_factor, cfg.clip_m)
+        self.res = coarse.resolution
+        pad = int(math.ceil(cfg.max_range_m / self.res)) + 2
+        self.pad = pad
+        self.values = np.pad(coarse.values, pad, constant_values=cfg.clip_m)
+        ny, nx = coarse.values.shape
+        hx = area_half_extent[0] + cfg.area_margin_m
+        hy = area_half_extent[1] + cfg.area_margin_m
+        xs = coarse.x0 + self.res * np.arange(nx)
+        ys = coarse.y0 + self.res * np.arange(ny)
+        jx = np.nonzero(np.abs(xs) <= hx)[0]
+        iy = np.nonzero(np.abs(ys) <= hy)[0]
+        self.j0, self.j1 = int(jx[0]), int(jx[-1]) + 1
+        self.i0, self.i1 = int(iy[0]), int(iy[-1]) + 1
+        self.tx = xs[self.j0:self.j1]
+        self.ty = ys[self.i0:self.i1]
+        self.yaws = np.radians(np.arange(0.0, 180.0, cfg.yaw_step_deg))
+
+    def _select(self, hits: ProjectedHits) -> np.ndarray:
+        near = np.nonzero(hits.range_m < self.cfg.max_range_m)[0]
+        if len(near) > self.cfg.max_points:
+            # Spread the kept hits over the frame rather than taking a cluster.
+            near = near[np.linspace(0, len(near) - 1, self.cfg.max_points).round().astype(int)]
+        return hits.points[near]
+
+    def costs(self, hits: ProjectedHits) -> np.ndarray:
+        """(n_yaw, n_ty, n_tx) mean clipped distance of the selected hits for every grid pose."""
+        pts = self._select(hits)
+        h, w = self.i1 - self.i0, self.j1 - self.j0
+        out = np.zeros((len(self.yaws), h, w), np.float32)
+        if len(pts) == 0:
+            out[:] = self.cfg.clip_m
+            return out
+        c, s = np.cos(self.yaws)[:, None], np.sin(self.yaws)[:, None]
+        dx = np.rint((c * pts[:, 0] - s * pts[:, 1]) / self.res).astype(int) + self.pad
+        dy = np.rint((s * pts[:, 0] + c * pts[:, 1]) / self.res).astype(int) + self.pad
+        v = self.values
+        for k in range(len(self.yaws)):
+            acc = out[k]
+            for ox, oy in zip(dx[k], dy[k]):
+                acc += v[self.i0 + oy:self.i1 + oy, self.j0 + ox:self.j1 + ox]
+        out /= len(pts)
+        return out
+
+    def candidates(self, hits: ProjectedHits) -> list[np.ndarray]:
+        """Up to cfg.candidates distinct low-cost poses (x, y, yaw), best first."""
+        cost = self.costs(hits)
+        flat = cost.ravel()
+        pool = min(len(flat), 40 * self.cfg.candidates)
+        best = np.argpartition(flat, pool - 1)[:pool]
+        best = best[np.argsort(flat[best])]
+        picked: list[np.ndarray] = []
+        for b in best:
+            k, i, j = np.unravel_index(b, cost.shape)
+            pose = np.array([self.tx[j], self.ty[i], self.yaws[k]])
+            # Non-maximum suppression: skip poses close to a better one already taken.
+            if any(math.hypot(*(pose[:2] - p[:2])) < 0.5 and
+                   abs((pose[2] - p[2] + math.pi / 2) % math.pi - math.pi / 2) < math.radians(10) for p in picked):
+                continue
+            picked.append(pose)
+            if len(picked) >= self.cfg.candidates:
+                break
+        return picked

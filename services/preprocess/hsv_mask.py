@@ -1,0 +1,52 @@
+"""The white mask: BGR -> OpenCV HSV -> union of `cv2.inRange` boxes, as 0/255 uint8.
+
+Two entry points compute the same per-pixel function: `white_mask` on a whole frame (debug preview,
+reference) and `white_mask_pixels` on a list of gathered pixels (the fast scan only looks at the pixels
+its rays visit). OpenCV's BGR->HSV conversion is per pixel, so both agree pixel for pixel; the tests check it.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from courtloc.services.preprocess.config import HsvRange
+
+
+def _bounds(ranges: Sequence[HsvRange]) -> list[tuple[np.ndarray, np.ndarray]]:
+    return [(np.array(r.lower, np.uint8), np.array(r.upper, np.uint8)) for r in ranges]
+
+
+def _mask_of_hsv(hsv: np.ndarray, bounds: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    mask = cv2.inRange(hsv, bounds[0][0], bounds[0][1])
+    for lower, upper in bounds[1:]:
+        cv2.bitwise_or(mask, cv2.inRange(hsv, lower, upper), dst=mask)
+    return mask
+
+
+class WhiteMask:
+    """The mask function for one set of HSV ranges, with the bounds converted once."""
+
+    def __init__(self, ranges: Sequence[HsvRange]) -> None:
+        if not ranges:
+            raise ValueError("at least one HSV range is needed")
+        self._bounds = _bounds(ranges)
+
+    def frame(self, bgr: np.ndarray) -> np.ndarray:
+        """(H, W, 3) uint8 BGR -> (H, W) uint8 mask, 255 where white."""
+        return _mask_of_hsv(cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV), self._bounds)
+
+    def pixels(self, bgr_pixels: np.ndarray) -> np.ndarray:
+        """(N, 3) uint8 BGR pixels -> (N,) uint8 mask values, 255 where white."""
+        n = bgr_pixels.shape[0]
+        if n == 0:
+            return np.zeros(0, np.uint8)
+        # A one-row image lets OpenCV convert the list exactly as it converts a frame.
+        hsv = cv2.cvtColor(bgr_pixels.reshape(1, n, 3), cv2.COLOR_BGR2HSV)
+        return _mask_of_hsv(hsv, self._bounds).reshape(n)
+
+
+def white_mask(bgr: np.ndarray, ranges: Sequence[HsvRange]) -> np.ndarray:
+    """Convenience: the full-frame mask of `bgr` for `ranges`."""
+    return WhiteMask(ranges).frame(bgr)

@@ -1,0 +1,213 @@
+"""The serial link to the shooter MCU: latest command wins, heartbeat when idle, reconnect with back-off.
+
+One writer thread owns the port. `send()` only replaces the pending command and wakes the thread, so
+the caller never blocks and never sees a serial error; a command replaced before it was written is
+counted, not queued (an old RPM is worth nothing). When nothing was written for `heartbeat_s`, a
+HEARTBEAT goes out. A write or open failure closes the port and retries after 0.1 s, 0.2 s, 0.4 s ...
+up to `reconnect_max_s`; a command queued while the port was away is dropped on reconnect. STATUS frames from the MCU are read between writes (at least once per
+heartbeat period) and handed to `on_status`.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable, Iterator, Optional
+
+from courtloc.services.shooter_bridge.config import LinkConfig
+from courtloc.services.shooter_bridge.protocol import Command, HoldReason, McuFrame, StreamDecoder, encode
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class LinkStats:
+    frames_sent: int = 0
+    heartbeats_sent: int = 0
+    commands_replaced: int = 0
+    write_errors: int = 0
+    read_errors: int = 0
+    open_failures: int = 0
+    connects: int = 0
+    status_frames: int = 0
+    last_error: str = ""
+
+
+class McuLink:
+    def __init__(self, config: LinkConfig, on_status: Optional[Callable[[McuFrame], None]] = None) -> None:
+        self.config = config
+        self.on_status = on_status
+        self.stats = LinkStats()
+        self.last_status: Optional[McuFrame] = None
+        self._decoder = StreamDecoder()
+        self._lock = threading.Lock()
+        self._pending: Optional[tuple[Command, int, int, int]] = None
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._connected = threading.Event()
+        self._port = None  # serial.Serial while open; touched by the writer thread only
+        self._seq = 0
+        self._last_write = 0.0
+        self._thread: Optional[threading.Thread] = None
+        self._changed = threading.Condition()  # notified whenever stats or the connection change
+
+    # ---- caller side ----------------------------------------------------------------------------
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._thread = threading.Thread(target=self._run, name="mcu-link", daemon=True)
+        self._thread.start()
+
+    def send(self, command: Command, rpm: float = 0.0, flags: int = 0, reason: int = 0) -> None:
+        """Queue `command` for the MCU, replacing any not yet written. Never blocks, never raises."""
+        value = int(round(min(max(rpm, 0.0), 65535.0))) if command is Command.SET_RPM else 0
+        with self._lock:
+            if self._pending is not None:
+                self.stats.commands_replaced += 1
+            self._pending = (command, value, int(flags) & 0xFF, int(reason) & 0xFF)
+        self._wake.set()
+
+    @property
+    def connected(self) -> bool:
+        return self._connected.is_set()
+
+    def wait_connected(self, timeout: float) -> bool:
+        return self._connected.wait(timeout)
+
+    def wait_until(self, predicate: Callable[["McuLink"], bool], timeout: float) -> bool:
+        """Block until `predicate(self)` holds (re-checked on every state change) or `timeout` passes."""
+        with self._changed:
+            return self._changed.wait_for(lambda: predicate(self), timeout)
+
+    def _notify(self) -> None:
+        with self._changed:
+            self._changed.notify_all()
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """Send a last HOLD (best effort), close the port and end the thread."""
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            self._thread = None
+
+    # ---- writer thread --------------------------------------------------------------------------
+    def _run(self) -> None:
+        delays = backoff_delays(self.config.reconnect_initial_s, self.config.reconnect_max_s)
+        while not self._stop.is_set():
+            if self._port is None:
+                if not self._open():
+                    self._stop.wait(next(delays))
+                    continue
+                delays = backoff_delays(self.config.reconnect_initial_s, self.config.reconnect_max_s)
+            due = self._last_write + self.config.heartbeat_s - time.monotonic()
+            self._wake.wait(max(0.0, due))
+            self._wake.clear()
+            if self._stop.is_set():
+                break
+            with self._lock:
+                pending, self._pending = self._pending, None
+            if pending is not None:
+                self._write(*pending)
+            elif time.monotonic() - self._last_write >= self.config.heartbeat_s:
+                self._write(Command.HEARTBEAT, 0, 0, 0)
+            self._read_status()
+        if self._port is not None:
+            self._write(Command.HOLD, 0, 0, int(HoldReason.STOPPED))
+            self._close()
+
+    def _open(self) -> bool:
+        import serial
+
+        try:
+            # exclusive: a second bridge on the same MCU must fail to open, not interleave frames
+            self._port = serial.Serial(self.config.port, self.config.baud, timeout=0,
+                                       write_timeout=self.config.write_timeout_s, exclusive=True)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            self.stats.open_failures += 1
+            self._note_error(f"open {self.config.port}: {exc}")
+            return False
+        self.stats.connects += 1
+        self.stats.last_error = ""
+        self._decoder = StreamDecoder()
+        with self._lock:
+            # A command queued while the port was away is old by now: the next decision replaces it.
+            if self._pending is not None:
+                self._pending = None
+                self.stats.commands_replaced += 1
+        self._last_write = 0.0  # heartbeat at once: the MCU learns the link is back
+        self._connected.set()
+        log.info("MCU link open on %s at %d baud", self.config.port, self.config.baud)
+        self._notify()
+        return True
+
+    def _close(self) -> None:
+        port, self._port = self._port, None
+        self._connected.clear()
+        if port is not None:
+            try:
+                port.close()
+            except Exception:  # closing a vanished device may fail; it is gone either way
+                pass
+        self._notify()
+
+    def _write(self, command: Command, rpm: int, flags: int, reason: int) -> None:
+        import serial
+
+        if self._port is None:
+            return
+        data = encode(McuFrame(seq=self._seq, command=command, rpm=rpm, flags=flags, reason=reason))
+        try:
+            self._port.write(data)
+        except (serial.SerialException, OSError) as exc:  # includes SerialTimeoutException
+            self.stats.write_errors += 1
+            self._note_error(f"write to {self.config.port}: {exc}")
+            self._close()
+            return
+        self._seq = (self._seq + 1) & 0xFFFF
+        self._last_write = time.monotonic()
+        self.stats.frames_sent += 1
+        if command is Command.HEARTBEAT:
+            self.stats.heartbeats_sent += 1
+        self._notify()
+
+    def _read_status(self) -> None:
+        import serial
+
+        if self._port is None:
+            return
+        try:
+            waiting = self._port.in_waiting
+            data = self._port.read(waiting) if waiting else b""
+        except (serial.SerialException, OSError) as exc:
+            self.stats.read_errors += 1
+            self._note_error(f"read from {self.config.port}: {exc}")
+            self._close()
+            return
+        for frame in self._decoder.feed(data):
+            if frame.command is not Command.STATUS:
+                continue
+            self.stats.status_frames += 1
+            self.last_status = frame
+            self._notify()
+            if self.on_status is not None:
+                try:
+                    self.on_status(frame)
+                except Exception:  # the caller's bug must not end the link
+                    log.exception("on_status handler failed")
+
+    def _note_error(self, message: str) -> None:
+        # Logged once per distinct error: a missing port during back-off would otherwise flood the log.
+        if message != self.stats.last_error:
+            log.warning("MCU link: %s", message)
+        self.stats.last_error = message
+        self._notify()
+
+
+def backoff_delays(initial_s: float, max_s: float) -> Iterator[float]:
+    """initial, 2 x initial, 4 x initial ... capped at max_s, forever."""
+    delay = initial_s
+    while True:
+        yield delay
+        delay = min(delay * 2.0, max_s)

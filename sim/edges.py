@@ -1,0 +1,38 @@
+"""The twin's link to the preprocess stage: edge hits of rendered frames and dot centres of seed images.
+
+Both come from `courtloc.services.preprocess` (the pipeline's own code), so the twin is checked against
+exactly what the robot runs.
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+
+@lru_cache(maxsize=1)
+def _preprocessor():
+    from courtloc.services.preprocess.config import PreprocessConfig
+    from courtloc.services.preprocess.pipeline import Preprocessor
+
+    return Preprocessor(PreprocessConfig())
+
+
+def scan_hits(bgr: np.ndarray) -> np.ndarray:
+    """int16 (N, 4) hits (row, col, ray, d) of a BGR frame with the default preprocess configuration."""
+    return _preprocessor().process(bgr)
+
+
+def dot_centres(image: np.ndarray) -> np.ndarray:
+    """(N, 2) float (u, v) = (column, row) centres of the white dots of a seed-style edge image."""
+    from courtloc.services.preprocess.seed_dots import dots_to_hits
+
+    rows_cols = dots_to_hits(image)
+    return rows_cols[:, ::-1].astype(float)
+
+
+def hits_image(hits: np.ndarray, height: int, width: int) -> np.ndarray:
+    """The seed-style dot image (white radius-2 dots on black) of hits."""
+    from courtloc.services.preprocess.seed_dots import draw_hits
+
+    return draw_hits(hits, height, width)

@@ -1,0 +1,127 @@
+"""The simulated camera: drives the twin robot along a trajectory and renders what its camera sees.
+
+The camera service paces it; here time is simply frame_index / fps, so a run is reproducible frame for
+frame, and each read returns the frame together with the TRUE pose it was rendered at.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Literal, Optional
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from courtloc.sim.camera import Pose
+from courtloc.sim.render import RenderOptions
+
+log = logging.getLogger(__name__)
+
+# A loop around the seed court that sees the key, the three-point line and the centre line.
+DEFAULT_WAYPOINTS: list[list[float]] = [[-3.0, -2.0], [3.0, -2.0], [3.0, 2.0], [-3.0, 2.0]]
+
+
+class SimSourceConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    court: str = Field("seed-gazebo", description="court name (sim/courts) or JSON path")
+    camera: Optional[str] = Field(None, description="camera name or JSON path; default: the court's camera")
+    trajectory: Literal["waypoints", "random_walk", "csv"] = "waypoints"
+    waypoints: list[list[float]] = Field(default_factory=lambda: [list(w) for w in DEFAULT_WAYPOINTS])
+    speed_mps: float = Field(1.0, gt=0, le=10)
+    yaw_rate_rps: float = Field(1.5, gt=0, le=20)
+    margin_m: float = Field(0.3, ge=0, description="random walk: distance kept from the area's edge")
+    csv_path: Optional[str] = None
+    seed: int = 0
+    render: RenderOptions = RenderOptions()
+    fps: float = Field(30.0, gt=0, le=1000)
+
+
+class SimSource:
+    """open() -> read() -> (BGR frame, true pose) ... -> close(); also a context manager."""
+
+    def __init__(self, config: SimSourceConfig) -> None:
+        self.config = config
+        self.frame_index = 0
+        self._renderer = None
+        self._trajectory = None
+
+    # ---- lifecycle ------------------------------------------------------------------------------
+    def open(self) -> "SimSource":
+        from courtloc.sim.camera import load_camera
+        from courtloc.sim.court import load_court
+        from courtloc.sim.render import Renderer
+
+        cfg = self.config
+        court = load_court(cfg.court)
+        camera = load_camera(cfg.camera or court.default_camera)
+        self.court = court
+        self._trajectory = self._build_trajectory(court)
+        self._renderer = Renderer(court, camera)
+        self.frame_index = 0
+        log.info("sim source: court %s, camera %s, %s trajectory at %.1f fps", court.name, camera.name, cfg.trajectory, cfg.fps)
+        return self
+
+    def close(self) -> None:
+        self._renderer = None
+        self._trajectory = None
+
+    def __enter__(self) -> "SimSource":
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def camera(self):
+        if self._renderer is None:
+            raise RuntimeError("SimSource is not open")
+        return self._renderer.camera
+
+    # ---- frames ---------------------------------------------------------------------------------
+    def pose_at_index(self, index: int) -> Pose:
+        if self._trajectory is None:
+            raise RuntimeError("SimSource is not open: call open() first")
+        return self._trajectory.pose_at(index / self.config.fps)
+
+    def read(self) -> tuple[np.ndarray, tuple[float, float, float]]:
+        """The next frame (BGR uint8) and the true pose (x, y, yaw) it shows; time advances 1/fps."""
+        if self._renderer is None:
+            raise RuntimeError("SimSource is not open: call open() first")
+        index = self.frame_index
+        pose = self.pose_at_index(index)
+        if not self.court.contains(pose[0], pose[1]):
+            raise ValueError(f"frame {index}: pose {pose} lies outside court {self.court.name!r}")
+        # Each frame's randomisation depends only on (seed, frame index): reproducible from any start.
+        rng = np.random.default_rng([self.config.seed, index])
+        frame = self._renderer.render(pose, self.config.render, rng)
+        self.frame_index += 1
+        return frame, (float(pose[0]), float(pose[1]), float(pose[2]))
+
+    @property
+    def timestamp(self) -> float:
+        """Simulated time of the next frame, seconds."""
+        return self.frame_index / self.config.fps
+
+    # ---- setup ----------------------------------------------------------------------------------
+    def _build_trajectory(self, court):
+        from courtloc.sim.trajectory import CsvTrajectory, RandomWalkTrajectory, WaypointTrajectory
+
+        cfg = self.config
+        hx, hy = court.area_half_extent_m
+        where = f"court {court.name!r} (|x| <= {hx}, |y| <= {hy})"
+        if cfg.trajectory == "waypoints":
+            for i, w in enumerate(cfg.waypoints):
+                if len(w) < 2 or not court.contains(w[0], w[1]):
+                    raise ValueError(f"waypoints[{i}] = {w} lies outside {where}")
+            return WaypointTrajectory(cfg.waypoints, cfg.speed_mps, cfg.yaw_rate_rps)
+        if cfg.trajectory == "random_walk":
+            return RandomWalkTrajectory(court, cfg.speed_mps, cfg.yaw_rate_rps, cfg.seed, cfg.margin_m)
+        if not cfg.csv_path:
+            raise ValueError("csv_path is required for trajectory 'csv'")
+        traj = CsvTrajectory(Path(cfg.csv_path), cfg.fps)
+        outside = np.flatnonzero(~court.contains(traj.poses[:, 0], traj.poses[:, 1]))
+        if len(outside):
+            i = int(outside[0])
+            raise ValueError(f"{cfg.csv_path} row {i + 1}: pose {tuple(traj.poses[i])} lies outside {where} "
+                             f"({len(outside)} rows outside)")
+        return traj

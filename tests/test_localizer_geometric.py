@@ -1,0 +1,178 @@
+"""The geometric localizer: known poses from twin frames, symmetry modes, degeneracy, seed frames, package."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from courtloc.localizer.config import LocalizerConfig
+from courtloc.localizer.fit import fit_pose
+from courtloc.localizer.geometric import GeometricLocalizer
+from courtloc.localizer.manifest import ManifestError
+from courtloc.localizer.package import build_package
+from courtloc.localizer.predictor import load_predictor
+from courtloc.localizer.projection import FloorProjector
+from courtloc.localizer.symmetry import by_previous, mirror
+from courtloc.sim.camera import load_camera
+from courtloc.sim.court import load_court
+
+POSES = [(2.0, 1.0, 0.3), (4.5, -2.0, 2.0), (1.0, 3.0, -1.2), (5.5, 0.5, 3.0), (3.0, -3.5, 1.4)]
+
+
+def _yaw_err(a: float, b: float) -> float:
+    return abs(math.remainder(a - b, 2 * math.pi))
+
+
+@pytest.fixture(scope="module")
+def twin():
+    court, camera = load_court("seed-gazebo"), load_camera("seed-gazebo")
+    return court, camera, GeometricLocalizer(court, camera)
+
+
+@pytest.fixture(scope="module")
+def twin_hits(twin):
+    from courtloc.sim.edges import scan_hits
+    from courtloc.sim.render import Renderer
+
+    court, camera, _ = twin
+    renderer = Renderer(court, camera)
+    return {pose: scan_hits(renderer.render(pose)) for pose in POSES + [(-1.0, -2.0, 0.5)]}
+
+
+@pytest.fixture(scope="module")
+def package(twin, tmp_path_factory):
+    court, camera, _ = twin
+    folder = tmp_path_factory.mktemp("pkg")
+    build_package(folder, court, camera)
+    return folder
+
+
+def test_cold_start_recovers_known_poses_from_twin_frames(package, twin_hits):
+    predictor = load_predictor(package)
+    for pose in POSES:
+        pred = predictor.predict(twin_hits[pose], 640, 480)
+        assert pred.valid and pred.mode == "global", pose
+        assert math.hypot(pred.x - pose[0], pred.y - pose[1]) < 0.03, (pose, pred)
+        assert math.degrees(_yaw_err(pred.yaw, pose[2])) < 0.5, (pose, pred)
+
+
+def test_tracking_from_a_nearby_previous_pose(package, twin_hits):
+    predictor = load_predictor(package)
+    pose = POSES[1]
+    pred = predictor.predict(twin_hits[pose], 640, 480, previous=(pose[0] + 0.08, pose[1] - 0.05, pose[2] + 0.03))
+    assert pred.mode == "track" and pred.valid
+    assert math.hypot(pred.x - pose[0], pred.y - pose[1]) < 0.03
+
+
+def test_symmetry_modes(twin, twin_hits):
+    court, camera, loc = twin
+    true = np.array([-1.0, -2.0, 0.5])
+    projector = FloorProjector(camera, loc.config.edge_offset_px, loc.config.max_range_m)
+    hits = twin_hits[tuple(true)]
+    projected = projector.project(hits[:, 0], hits[:, 1])
+
+    def run(previous=None, **kw):
+        cfg = LocalizerConfig(**kw)
+        return GeometricLocalizer(court, camera, cfg, field=loc.field).localize(projected, previous)
+
+    def close(pose, ref):
+        return math.hypot(*(pose[:2] - ref[:2])) < 0.05 and _yaw_err(pose[2], ref[2]) < 0.01
+
+    assert close(run(symmetry="half", half="+x").pose, mirror(true))  # forced into the +x half
+    assert close(run(symmetry="half", half="-x").pose, true)
+    assert close(run(symmetry="previous", half="+x").pose, mirror(true))  # no previous: the half decides
+    assert close(run(true + [0.3, -0.2, 0.1], symmetry="previous", half="+x").pose, true)
+    both = run(symmetry="both", half="-x")
+    assert close(both.pose, true) and len(both.alternatives) == 1 and close(both.alternatives[0], mirror(true))
+    # "half" overrides even a previous pose on the other side.
+    assert close(run(true + [0.3, -0.2, 0.1], symmetry="half", half="+x").pose, mirror(true))
+
+
+def test_previous_rule_uses_heading_at_the_centre():
+    # Near the centre point the twins are close in position; only the heading tells them apart.
+    pose = np.array([0.06, 0.01, math.pi - 0.01])
+    chosen = by_previous(pose, np.array([-0.04, 0.0, 0.02]))
+    assert abs(chosen[2]) < 0.05 and chosen[0] < 0
+
+
+def _edge_points_robot(court, pose, keep) -> np.ndarray:
+    pts, nrm = court.white_edges(0.05)
+    sel = keep(pts, nrm)
+    x, y, yaw = pose
+    c, s = math.cos(yaw), math.sin(yaw)
+    d = pts[sel] - [x, y]
+    return np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]])
+
+
+def test_only_parallel_lines_is_degenerate(twin):
+    court, _, loc = twin
+    pose = np.array([1.0, 2.5, math.pi / 2])  # facing +y, towards the far edge of the white floor at y = 5.99
+
+    def far_edge(p, n):
+        return (n[:, 1] > 0.9) & (np.abs(p[:, 1] - 5.99) < 0.01) & (np.abs(p[:, 0] - 1.0) < 3.0)
+
+    def plus_cross_line(p, n):  # the same edge plus the centre line's far side (x = -0.0435): x is pinned too
+        cross = (n[:, 0] < -0.9) & (np.abs(p[:, 0] + 0.0435) < 0.01) & (p[:, 1] > 3.0) & (p[:, 1] < 4.1)
+        return far_edge(p, n) | cross
+
+    start = pose + [0.04, -0.03, 0.01]
+    only_parallel = fit_pose(loc.field, loc.geometry.from_points(_edge_points_robot(court, pose, far_edge)), start,
+                             loc.config.fit, loc.config.quality)
+    assert not only_parallel.valid
+    assert only_parallel.position_std_m > loc.config.quality.max_position_std_m
+    crossed = fit_pose(loc.field, loc.geometry.from_points(_edge_points_robot(court, pose, plus_cross_line)), start,
+                       loc.config.fit, loc.config.quality)
+    assert crossed.valid and crossed.position_std_m < only_parallel.position_std_m / 3
+    assert math.hypot(*(crossed.pose[:2] - pose[:2])) < 0.01
+
+
+def test_onnx_table_matches_numpy_projection(package, twin):
+    _, camera, loc = twin
+    predictor = load_predictor(package)
+    hits = np.array([[300, 320, 0, 0], [470, 10, 0, 0], [100, 100, 0, 0], [-3, 5, 0, 0], [479, 700, 0, 0]], np.int16)
+    onnx_pts = predictor.floor_points(hits)
+    numpy_pts = FloorProjector(camera, loc.config.edge_offset_px, loc.config.max_range_m).lookup(hits[:, 0], hits[:, 1])
+    np.testing.assert_array_equal(np.isnan(onnx_pts), np.isnan(numpy_pts))
+    assert np.isfinite(onnx_pts[:2]).all() and np.isnan(onnx_pts[2:]).all()  # above horizon / outside the image
+    np.testing.assert_allclose(onnx_pts[:2], numpy_pts[:2], atol=1e-6)
+    assert onnx_pts[0, 0] > 0 and abs(onnx_pts[0, 1]) < 0.01  # the centre column looks straight ahead
+
+
+def test_package_with_a_foreign_part_is_refused(package, tmp_path):
+    import shutil
+
+    copy = tmp_path / "pkg"
+    shutil.copytree(package, copy)
+    court = json.loads((copy / "court.json").read_text())
+    court["lines"][0]["width"] = 0.2
+    (copy / "court.json").write_text(json.dumps(court))
+    with pytest.raises(ManifestError, match="court.json"):
+        load_predictor(copy)
+
+
+def test_wrong_frame_size_is_refused(package, twin_hits):
+    with pytest.raises(ValueError, match="640x480"):
+        load_predictor(package).predict(twin_hits[POSES[0]], 320, 240)
+
+
+@pytest.mark.seed
+def test_real_seed_frames_within_target(seed_dir, twin):
+    """Every 150th seed frame, fit from the previous frame's label (a tracking start)."""
+    from courtloc.localizer.seed_eval import load_seed_frames
+
+    court, camera, loc = twin
+    pairs = [k for i in range(40, 5740, 150) for k in (i - 1, i)]
+    frames = load_seed_frames(seed_dir, lag_s=0.0147, indices=pairs)
+    projector = FloorProjector(camera, loc.config.edge_offset_px, loc.config.max_range_m)
+    errs, yaw_errs = [], []
+    for k in range(0, len(frames.hits), 2):  # pairs: (previous frame, frame)
+        hits = frames.hits[k + 1]
+        res = fit_pose(loc.field, projector.project(hits[:, 0], hits[:, 1]), frames.truth[k], loc.config.fit,
+                       loc.config.quality)
+        errs.append(math.hypot(*(res.pose[:2] - frames.truth[k + 1, :2])))
+        yaw_errs.append(math.degrees(_yaw_err(res.pose[2], frames.truth[k + 1, 2])))
+    assert len(errs) >= 30
+    assert np.median(errs) < 0.03, np.round(errs, 3)
+    assert np.median(yaw_errs) < 0.4

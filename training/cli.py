@@ -1,0 +1,83 @@
+"""`courtloc train`, `courtloc export`, `courtloc explain`: the training-side commands (need the `train` extra)."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    train = sub.add_parser("train", help="train the paper network on a seed-format dataset (needs torch)")
+    train.add_argument("--data", type=Path, required=True, help="dataset folder (images/ + pose_data.csv)")
+    train.add_argument("--csv", type=Path, default=None, help="label CSV (default DATA/pose_data.csv)")
+    train.add_argument("--kind", choices=("dots", "raw"), default="dots",
+                       help="images are edge-dot images (seed) or raw camera frames")
+    train.add_argument("--out", type=Path, required=True, help="run folder: checkpoints, loss curve, model.pt")
+    train.add_argument("--train-recordings", nargs="+", default=None, metavar="REC")
+    train.add_argument("--val-recordings", nargs="*", default=None, metavar="REC",
+                       help="held-out recordings (default: the last one); give none to train without validation")
+    train.add_argument("--arch", choices=("paper", "mobilenet_v2", "efficientnet_b0"), default="paper",
+                       help="the paper's MLP, or a CNN baseline (needs torchvision)")
+    train.add_argument("--crop-top", type=int, default=200)
+    train.add_argument("--epochs", type=int, default=15)
+    train.add_argument("--batch-size", type=int, default=8)
+    train.add_argument("--lr", type=float, default=1e-4)
+    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    train.add_argument("--no-progress", action="store_true")
+    train.set_defaults(func=_train)
+
+    export = sub.add_parser("export", help="export a trained paper network to dense + sparse ONNX with manifests")
+    export.add_argument("weights", type=Path, help="OUT/model.pt written by `courtloc train`")
+    export.add_argument("--out", type=Path, required=True, help="folder for NAME-dense.onnx / NAME-sparse.onnx")
+    export.add_argument("--graphs", nargs="+", choices=("dense", "sparse"), default=["dense", "sparse"])
+    export.add_argument("--name", default="paper-mlp")
+    export.add_argument("--version", type=int, default=1)
+    export.add_argument("--court", default="seed-gazebo")
+    export.add_argument("--camera", default="seed-gazebo")
+    export.set_defaults(func=_export)
+
+    explain = sub.add_parser("explain", help="Integrated Gradients saliency PNGs of the paper network")
+    explain.add_argument("--model", type=Path, required=True, help="OUT/model.pt written by `courtloc train`")
+    explain.add_argument("images", type=Path, nargs="+", help="edge-dot images")
+    explain.add_argument("--out", type=Path, required=True)
+    explain.add_argument("--steps", type=int, default=32, help="Riemann steps along the straight path")
+    explain.set_defaults(func=_explain)
+
+
+def _train(args: argparse.Namespace) -> int:
+    from courtloc.training.trainer import TrainConfig, train
+
+    cfg = TrainConfig(data=args.data, csv=args.csv, kind=args.kind, out=args.out,
+                      train_recordings=args.train_recordings, val_recordings=args.val_recordings,
+                      crop_top=args.crop_top, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
+                      seed=args.seed, resume=args.resume, progress=not args.no_progress)
+    if args.arch != "paper":
+        from courtloc.training.baselines import BaselineUnavailable, train_baseline
+
+        try:
+            summary = train_baseline(cfg, args.arch)
+        except BaselineUnavailable as exc:
+            print(f"error: {exc}")
+            return 2
+    else:
+        summary = train(cfg)
+    print(json.dumps(summary["metrics"], indent=1))
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from courtloc.training.export import export_paper
+
+    written = export_paper(args.weights, args.out, args.graphs, args.name, args.version, args.court, args.camera)
+    for kind, path in written.items():
+        print(f"{kind}: {path}")
+    return 0
+
+
+def _explain(args: argparse.Namespace) -> int:
+    from courtloc.training.explain import explain_images
+
+    for path in explain_images(args.model, args.images, args.out, args.steps):
+        print(path)
+    return 0

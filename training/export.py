@@ -1,0 +1,111 @@
+"""Export a trained paper network (OUT/model.pt) to its dense and sparse ONNX graphs, each with a manifest."""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+import onnx
+import torch
+
+from courtloc.localizer.manifest import (HsvRange, InputSpec, Manifest, OutputSpec, PreprocessSpec,
+                                         TensorSpec, TrainingData, attach_manifest)
+from courtloc.training import paper_onnx
+
+log = logging.getLogger(__name__)
+
+
+def load_weights(weights_file: Path) -> dict:
+    """{'weights', 'input_shape', 'crop_top', 'summary'} from OUT/model.pt, or from a training checkpoint
+    (OUT/last.pt: the model after its last finished epoch; memory-mapped, the optimiser state is not read)."""
+    state = torch.load(weights_file, weights_only=False, mmap=True)
+    if "weights" in state:
+        return state
+    if "model" not in state:
+        raise ValueError(f"{weights_file} is neither OUT/model.pt nor a training checkpoint OUT/last.pt")
+    from courtloc.training.paper_model import SparsePaperNet
+
+    table = state["model"]["first.weight"]
+    config = state.get("config", {})
+    height, width = state.get("input_shape") or _shape_from_pixels(table.shape[0])
+    model = SparsePaperNet.__new__(SparsePaperNet)
+    torch.nn.Module.__init__(model)  # no random init of a 734 MB table only to overwrite it
+    model.n_pixels = table.shape[0]
+    model.first = torch.nn.EmbeddingBag(table.shape[0], table.shape[1], mode="sum", sparse=True, _weight=table)
+    model.first_bias = torch.nn.Parameter(state["model"]["first_bias"])
+    from courtloc.training.paper_model import _tail
+
+    model.tail = _tail()
+    model.tail.load_state_dict({k[len("tail."):]: v for k, v in state["model"].items() if k.startswith("tail.")})
+    history = state.get("history", [])
+    summary = {"train_fingerprint": "", "train_recordings": config.get("train_recordings") or [],
+               "n_train": 0, "metrics": {}, "history": history,
+               "note": f"checkpoint after epoch {state.get('epoch')} of {config.get('epochs')}"}
+    return {"weights": model.numpy_weights(), "input_shape": [height, width],
+            "crop_top": int(config.get("crop_top", 200)), "summary": summary}
+
+
+def _shape_from_pixels(n_pixels: int, width: int = 640) -> tuple[int, int]:
+    """Checkpoints written before input_shape was stored: the paper's 640-wide crop."""
+    if n_pixels % width:
+        raise ValueError(f"cannot tell the input shape of a {n_pixels}-pixel checkpoint")
+    return n_pixels // width, width
+
+
+def _preprocessing(crop_top: int, height: int, width: int) -> PreprocessSpec:
+    try:  # the runtime's own default white ranges, so the manifest states what the robot will do
+        from courtloc.services.preprocess.config import DEFAULT_HSV_RANGES
+
+        ranges = [HsvRange(lower=r.lower, upper=r.upper) for r in DEFAULT_HSV_RANGES]
+    except ImportError:
+        ranges = []
+    return PreprocessSpec(frame_width=width, frame_height=height + crop_top, hsv_ranges=ranges,
+                          crop_top=crop_top, scan_origin=(width / 2.0, float(height + crop_top)))
+
+
+def paper_manifest(kind: str, summary: dict, height: int, width: int, crop_top: int, name: str,
+                   version: int, court: str, camera: str) -> Manifest:
+    if kind == "dense":
+        inputs = InputSpec(kind="dense_image", description="bottom crop of the 0/1 edge-dot image, float32",
+                           tensors=[TensorSpec(name=paper_onnx.DENSE_INPUT, dtype="float32", shape=[1, height, width])])
+    else:
+        inputs = InputSpec(kind="sparse_hits",
+                           description="non-zero pixels of the crop: row-major flat index (row*W+col, row "
+                                       "counted from crop_top) and value; see courtloc.localizer.paper_input",
+                           tensors=[TensorSpec(name=paper_onnx.SPARSE_INDICES, dtype="int64", shape=["K"]),
+                                    TensorSpec(name=paper_onnx.SPARSE_VALUES, dtype="float32", shape=["K"])])
+    return Manifest(
+        name=f"{name}-{kind}", version=version, input=inputs,
+        preprocessing=_preprocessing(crop_top, height, width), court=court, camera=camera,
+        outputs=[OutputSpec(name=paper_onnx.OUTPUT, components=["x", "y"], units=["m", "m"])],
+        training_data=TrainingData(fingerprint=summary.get("train_fingerprint", ""),
+                                   recordings=summary.get("train_recordings", []),
+                                   n_frames=summary.get("n_train", 0),
+                                   description="paper network, Adam 1e-4 (lazy Adam on layer 1), batch 8, MSE"),
+        metrics={k: {m: float(v) for m, v in d.items()} for k, d in summary.get("metrics", {}).items()},
+        extra={"architecture": "Flatten-Linear(N,1024)-ReLU-256-ReLU-64-ReLU-2", "graph": kind},
+    )
+
+
+def export_paper(weights_file: Path, out_dir: Path, kinds: Iterable[str] = ("dense", "sparse"),
+                 name: str = "paper-mlp", version: int = 1, court: str = "seed-gazebo",
+                 camera: str = "seed-gazebo") -> dict[str, Path]:
+    state = load_weights(weights_file)
+    weights = {k: np.asarray(v, dtype=np.float32) for k, v in state["weights"].items()}
+    height, width = state["input_shape"]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = {}
+    for kind in kinds:
+        if kind not in ("dense", "sparse"):
+            raise ValueError(f"unknown graph kind {kind!r}")
+        model = paper_onnx.build_dense(weights, height, width) if kind == "dense" else paper_onnx.build_sparse(weights)
+        manifest = paper_manifest(kind, state["summary"], height, width, state["crop_top"], name, version, court,
+                                  camera)
+        attach_manifest(model, manifest)
+        path = out_dir / f"{name}-{kind}.onnx"
+        onnx.save(model, str(path))
+        log.info("wrote %s", path)
+        written[kind] = path
+        del model
+    return written
