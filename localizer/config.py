@@ -44,8 +44,8 @@ class SearchConfig(BaseModel):
     coarse_factor: int = Field(10, ge=1, description="coarse cell = factor x fine cell")
     clip_m: float = Field(0.4, gt=0)
     yaw_step_deg: float = Field(3.0, gt=0, le=30)
-    max_points: int = Field(40, ge=4, description="hits used by the coarse search (nearest ranges first)")
-    max_range_m: float = Field(6.0, gt=0)
+    max_points: int = Field(60, ge=4, description="hits used by the coarse search (nearest ranges first)")
+    max_range_m: float = Field(9.0, gt=0)
     candidates: int = Field(8, ge=1, description="coarse minima refined")
     area_margin_m: float = Field(0.0, description="search |x|,|y| up to the court's robot area + this")
 
@@ -59,6 +59,8 @@ class LocalizerConfig(BaseModel):
     half: Half = Field("+x", description="the robot's half, used by 'half' mode and to start 'previous' mode")
     centre_margin_m: float = Field(0.3, ge=0,
                                    description="within this of x=0 the half rule picks by heading instead")
+    track_yaw_starts_rad: float = Field(0.06, ge=0, description="tracking also starts this far either side in yaw "
+                                        "(0: one start)")
     track_max_jump_m: float = Field(0.5, gt=0, description="a tracked pose moving more than this is re-checked")
     fit: FitConfig = FitConfig()
     quality: QualityConfig = QualityConfig()

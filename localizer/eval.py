@@ -75,30 +75,41 @@ class PaperOnnxModel:
 
 
 class HitsPredictorModel:
-    """A localizer package driven through the runtime predictor, fed radial-scan hits."""
+    """A localizer package driven through the runtime predictor, fed radial-scan hits.
 
-    def __init__(self, folder: Path, threads: int = 1) -> None:
+    With `tracking` (what the robot does) each frame gets the previous frame's prediction as its prior
+    while frames come from the same recording in order; without it every frame is localised on its own.
+    """
+
+    def __init__(self, path: Path, threads: int = 1, tracking: bool = True) -> None:
         from courtloc.localizer.predictor import load_predictor
 
-        self.predictor = load_predictor(folder, providers=["CPUExecutionProvider"], threads=threads)
+        self.predictor = load_predictor(path, providers=["CPUExecutionProvider"], threads=threads)
         self.manifest = self.predictor.manifest
+        self.tracking = tracking
+        self._last: tuple[str, int, object] | None = None  # (recording, frame index, prediction)
 
     def predict_frame(self, dataset: Dataset, i: int) -> tuple[float, float, Optional[float]]:
         hits, height, width = dataset.hits(i)
-        pose = self.predictor.predict(hits, width, height)
+        recording = str(dataset.recordings[i])
+        previous = None
+        if self.tracking and self._last is not None and self._last[0] == recording and self._last[1] == i - 1:
+            previous = self._last[2]
+        pose = self.predictor.predict(hits, width, height, previous)
+        self._last = (recording, i, pose)
         return float(pose.x), float(pose.y), None if pose.yaw is None else float(pose.yaw)
 
 
-def open_model(path: Path | None, threads: int = 1) -> FrameModel:
+def open_model(path: Path | None, threads: int = 1, tracking: bool = True) -> FrameModel:
     """An ONNX file of the paper network, or a model folder for the runtime predictor (default models/default)."""
     path = Path(path) if path is not None else default_model_path()
     if path.is_file() and path.suffix == ".onnx":
         manifest = read_manifest(path)
         if manifest.input.kind in PAPER_KINDS:
             return PaperOnnxModel(path, threads)
-        return HitsPredictorModel(path.parent, threads)
+        return HitsPredictorModel(path, threads, tracking)
     if path.is_dir():
-        return HitsPredictorModel(path, threads)
+        return HitsPredictorModel(path, threads, tracking)
     raise FileNotFoundError(f"no model at {path} (an .onnx file or a model folder)")
 
 

@@ -20,6 +20,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--plots", type=Path, default=None,
                         help="folder for plots (needs matplotlib) and per-frame predictions.csv")
     parser.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
+    parser.add_argument("--no-tracking", action="store_true",
+                        help="localise every frame on its own (default: consecutive frames of a recording "
+                             "get the previous prediction as prior, as on the robot)")
     parser.add_argument("--no-progress", action="store_true")
     parser.set_defaults(func=_eval)
 
@@ -49,7 +52,7 @@ def _eval(args: argparse.Namespace) -> int:
 
     dataset = Dataset(args.data, csv_path=args.csv, kind=args.kind)
     indices = dataset.indices_of(args.recordings) if args.recordings else None
-    model = open_model(args.model, threads=args.threads)
+    model = open_model(args.model, threads=args.threads, tracking=not args.no_tracking)
     result = evaluate(model, dataset, indices, progress=not args.no_progress)
     metrics = result.metrics.as_dict()
     text = json.dumps(metrics, indent=1)

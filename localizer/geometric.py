@@ -83,6 +83,12 @@ class GeometricLocalizer:
         """
         cfg = self.config
         first = fit_pose(self.field, hits, prev, cfg.fit, cfg.quality)
+        # The basin of the right alignment can be narrower than a frame's turn: always also try
+        # starts turned by +-track_yaw_starts_rad and keep the lowest robust cost.
+        for dyaw in (cfg.track_yaw_starts_rad, -cfg.track_yaw_starts_rad) if cfg.track_yaw_starts_rad > 0 else ():
+            other = fit_pose(self.field, hits, prev + (0.0, 0.0, dyaw), cfg.fit, cfg.quality)
+            if (other.valid, -other.cost) > (first.valid, -first.cost):
+                first = other
         if first.valid and math.hypot(*(first.pose[:2] - prev[:2])) <= cfg.track_max_jump_m:
             return first
         best = first

@@ -18,7 +18,8 @@ from courtloc.sim.render import RenderOptions
 log = logging.getLogger(__name__)
 
 # A loop around the seed court that sees the key, the three-point line and the centre line.
-DEFAULT_WAYPOINTS: list[list[float]] = [[-3.0, -2.0], [3.0, -2.0], [3.0, 2.0], [-3.0, 2.0]]
+# Starts in the +x half, where the bundled localizer assumes a robot starts (its `half`), then tours both.
+DEFAULT_WAYPOINTS: list[list[float]] = [[3.0, -2.0], [3.0, 2.0], [-3.0, 2.0], [-3.0, -2.0]]
 
 
 class SimSourceConfig(BaseModel):

@@ -119,12 +119,23 @@ def start_stage(name: str, config_path: Path, verbose: bool = True) -> Proc:
 class BusClient:
     """A test's own Zenoh client on the router: await messages and liveliness, inject payloads."""
 
-    def __init__(self, port: int, robot_id: str = "robot1", reconnect_max_s: float | None = None) -> None:
+    def __init__(self, port: int, robot_id: str = "robot1", reconnect_max_s: float | None = None,
+                 wait_for_router_s: float = 0.0) -> None:
         self.robot_id = robot_id
         # reconnect_max_s: a short back-off so the client itself is not the slow part after a router restart
         retry = {} if reconnect_max_s is None else {"open_retry_s": reconnect_max_s / 2,
                                                     "open_retry_max_s": reconnect_max_s}
-        self.session = open_session(ZenohConfig(mode="client", connect=[endpoint(port)], **retry))
+        give_up = threading.Event()  # with wait_for_router_s, keep trying until the router listens
+        timer = threading.Timer(wait_for_router_s, give_up.set)
+        timer.start()
+        try:
+            session = open_session(ZenohConfig(mode="client", connect=[endpoint(port)], **retry),
+                                   give_up if wait_for_router_s > 0 else None)
+        finally:
+            timer.cancel()
+        if session is None:
+            raise AssertionError(f"no router on port {port} within {wait_for_router_s} s")
+        self.session = session
         self._queues: dict[str, queue.Queue] = {}
         self._subs: list[Any] = []
         self._alive: set[str] = set()

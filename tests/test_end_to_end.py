@@ -67,8 +67,9 @@ def test_whole_chain_tracks_truth_and_drives_the_mcu(tmp_path: Path) -> None:
     errors: list[float] = []
     table = RpmTable.load(TABLE)
     ring = ring_for("seed-gazebo", "positive_x")
-    client = BusClient(port)
+    client: BusClient | None = None
     try:
+        client = BusClient(port, wait_for_router_s=60)
         client.subscribe("camera/ground_truth")
         client.subscribe("infer/pose")
         client.wait_alive("shooter_bridge", timeout=60)
@@ -94,7 +95,8 @@ def test_whole_chain_tracks_truth_and_drives_the_mcu(tmp_path: Path) -> None:
                 distance = aim(Pose2D(x, y, yaw), ring, ShooterMount(release_height_m=0.9)).horizontal_m
                 pairs.append((frame.rpm, table.lookup(distance).rpm))
     finally:
-        client.close()
+        if client is not None:
+            client.close()
         output, _ = up.communicate(timeout=RUN_S + 60)
         mcu.close()
     assert up.returncode == 0, output

@@ -52,6 +52,7 @@ def wait_state(url: str, predicate: Callable[[dict[str, Any]], bool], timeout: f
                 break
             if line.startswith(b"data: "):
                 last = json.loads(line[6:])
+                assert "error" not in last, last["error"]  # the monitor could not build its state
                 if predicate(last):
                     return last
     finally:

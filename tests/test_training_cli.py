@@ -1,6 +1,7 @@
 """`courtloc train / export / eval / explain / bench paper` end to end on a tiny synthetic set."""
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
@@ -39,7 +40,7 @@ def test_train_export_eval_explain(tmp_path: Path, capsys: pytest.CaptureFixture
     assert metrics["mse"] == pytest.approx(summary["metrics"]["val"]["mse"], abs=1e-5)
     lines = (plots / "predictions.csv").read_text().splitlines()
     assert len(lines) == 17 and lines[0].startswith("image_filename,")
-    if pytest.importorskip("matplotlib"):
+    if importlib.util.find_spec("matplotlib") is not None:  # plots are optional; the numbers are not
         assert {p.name for p in plots.glob("*.png")} == {"truth_vs_prediction.png", "error_cdf.png",
                                                            "error_by_region.png"}
     image = sorted((data / "images").iterdir())[0]

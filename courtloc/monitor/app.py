@@ -46,8 +46,9 @@ class Monitor:
         while not self.stop.is_set():
             try:
                 self.broadcast.publish(self.snapshotter.snapshot())
-            except Exception:  # one bad snapshot must not freeze the page
+            except Exception as exc:  # a bug here must show on the page, not freeze it
                 log.exception("state snapshot failed")
+                self.broadcast.publish({"status": "error", "error": f"monitor: {type(exc).__name__}: {exc}"})
             next_due += period
             if self.stop.wait(max(0.0, next_due - time.monotonic())):
                 break

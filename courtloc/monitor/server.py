@@ -116,7 +116,7 @@ class MonitorHandler(BaseHTTPRequestHandler):
         self.end_headers()
         self.close_connection = True
         broadcast, stop = self.server.broadcast, self.server.stop
-        version = -1
+        version = 0  # the first state is published by the ticker (version 1): nothing before it
         try:
             self.wfile.write(b"retry: 1000\n\n")  # the browser reconnects within 1 s if the monitor restarts
             while not stop.is_set():

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from itertools import islice
+from typing import Any, Iterable
 
 import cv2
 import numpy as np
@@ -36,6 +37,11 @@ def court_payload(court: Any) -> dict[str, Any]:
         "background": "#%02x%02x%02x" % court.rgb(court.outside_colour),
         "rings": [{"x": r.x, "y": r.y} for r in court.rings], "elements": elements,
     }
+
+
+def _newest(values: Iterable[Any], n: int) -> list[Any]:
+    """The last `n` items of a list or deque without copying the rest (the watcher keeps 100k)."""
+    return list(islice(reversed(values), n))  # type: ignore[call-overload]
 
 
 def _finite(value: float | None, digits: int = 4) -> float | None:
@@ -77,8 +83,8 @@ class Snapshotter:
             truth_trail = list(w.truth_trail)[-TRAIL_SENT:]
             health = dict(state.health)
             alive = set(state.alive)
-            errors = list(state.pose_errors_m[-60:])
-            e2e = list(state.e2e_ns[-300:])
+            errors = _newest(state.pose_errors_m, 60)
+            e2e = _newest(state.e2e_ns, 300)
             undecodable = state.undecodable
         pose_age = None if "infer/pose" not in received else now - received["infer/pose"]
         connected = self.connected(now)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import importlib.resources
 import math
+import queue
 import threading
 import time
 from pathlib import Path
@@ -53,6 +54,7 @@ class InferService(Service):
         self.swaps = 0
         self._control = ModelControl(self, Uploads(self.store, int(config.max_upload_mb * 2**20)))
         self._control_thread: threading.Thread | None = None
+        self._queries: queue.Queue[zenoh.Query] = queue.Queue(maxsize=64)
         self._queryable = None
 
     # ---- start-up ----------------------------------------------------------------------
@@ -61,7 +63,8 @@ class InferService(Service):
         self.log.info("serving model %s", self.active.ref)
         assert self.session is not None
         control = CONTROLS["infer/model"]
-        self._queryable = self.session.declare_queryable(control.key(self.robot_id), zenoh.handlers.FifoChannel(64))
+        # The callback only queues the query; requests are answered on our own control thread.
+        self._queryable = self.session.declare_queryable(control.key(self.robot_id), self._enqueue_query)
         self._control_thread = threading.Thread(target=self._serve_control, name="infer-control", daemon=True)
         self._control_thread.start()
 
@@ -129,6 +132,12 @@ class InferService(Service):
                     infer_ms=(time.perf_counter() - start) * 1e3, reason=reason)
 
     # ---- model control (its own thread) -------------------------------------------------------
+    def _enqueue_query(self, query: zenoh.Query) -> None:
+        try:
+            self._queries.put_nowait(query)
+        except queue.Full:  # dropped: the caller's request times out and it may ask again
+            self.record_error("control", "model request queue full; request dropped")
+
     def _serve_control(self) -> None:
         assert self._queryable is not None
         while not self.stop_event.is_set():
@@ -136,7 +145,10 @@ class InferService(Service):
                 query = self._queryable.recv()
             except Exception:  # the queryable was undeclared at shutdown
                 return
-            self._answer(query)
+            # Dropping the query finalises it; until then the asker does not get the reply (a query
+            # kept alive in the loop variable would hold it until the next request arrived).
+            with query:
+                self._answer(query)
 
     def _answer(self, query: zenoh.Query) -> None:
         payload = query.payload
@@ -183,10 +195,10 @@ class InferService(Service):
         return ModelReply(ok=True, name=stats.name, version=stats.version, shadow=stats)
 
     def on_stop(self) -> None:
-        if self._queryable is not None:
-            self._queryable.undeclare()
         if self._control_thread is not None:
             self._control_thread.join(timeout=5.0)
+        if self._queryable is not None:
+            self._queryable.undeclare()
         self.start_shadow(None)
 
     def health_detail(self) -> dict[str, float | int | str]:

@@ -118,6 +118,11 @@ function degrees(rad) {
 }
 
 function update(s) {
+  if (s.error) { // the monitor itself failed to build the state: say so instead of freezing
+    setStatus("error");
+    $("last-error").textContent = s.error;
+    return;
+  }
   lastState = s;
   $("robot-id").textContent = s.robot_id;
   setStatus(s.status);

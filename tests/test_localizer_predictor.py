@@ -1,0 +1,53 @@
+"""load_predictor serves the paper network's ONNX kinds too (fed hits drawn as the dot image)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from courtloc.localizer.manifest import (InputSpec, Manifest, ManifestError, OutputSpec, TensorSpec,
+                                         attach_manifest)
+from courtloc.localizer.predictor import load_predictor
+
+H, W = 280, 640
+
+
+def _counting_dense_model(path):
+    """x = number of lit pixels in the crop, y = 2 * that number: checks the feed, not a network."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    weight = np.zeros((H * W, 2), np.float32)
+    weight[:, 0], weight[:, 1] = 1.0, 2.0
+    graph = helper.make_graph(
+        [helper.make_node("Flatten", ["image"], ["flat"], axis=1), helper.make_node("MatMul", ["flat", "w"], ["xy"])],
+        "toy", [helper.make_tensor_value_info("image", TensorProto.FLOAT, [1, H, W])],
+        [helper.make_tensor_value_info("xy", TensorProto.FLOAT, [1, 2])],
+        initializer=[numpy_helper.from_array(weight, "w")])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    attach_manifest(model, Manifest(
+        name="toy-dense", version=1, court="seed-gazebo", camera="seed-gazebo",
+        input=InputSpec(kind="dense_image", tensors=[TensorSpec(name="image", dtype="float32", shape=[1, H, W])]),
+        outputs=[OutputSpec(name="xy", components=["x", "y"], units=["m", "m"])]))
+    onnx.save(model, str(path))
+
+
+def test_dense_paper_model_gets_the_dot_image_of_the_hits(tmp_path):
+    path = tmp_path / "toy.onnx"
+    _counting_dense_model(path)
+    predictor = load_predictor(path)
+    assert predictor.manifest.input.kind == "dense_image"
+    hits = np.array([[300, 100, 0, 0], [400, 500, 0, 0], [50, 320, 0, 0]], np.int16)  # the last is cropped away
+    pred = predictor.predict(hits, 640, 480)
+    assert pred.yaw is None and pred.valid
+    assert pred.x == pytest.approx(26.0)  # two radius-2 discs of 13 pixels
+    assert pred.y == pytest.approx(52.0)
+
+
+def test_file_without_manifest_is_refused(tmp_path):
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"not a model")
+    with pytest.raises(Exception):
+        load_predictor(bad)
+    with pytest.raises(ManifestError):
+        load_predictor(tmp_path / "missing")
