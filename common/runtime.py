@@ -113,7 +113,6 @@ class Service:
             self.log.info("%s stopped", self.name)
 
     def _run_in_session(self, zsession: zenoh.Session) -> int:
-        token = zsession.liveliness().declare_token(liveliness_key(self.robot_id, self.name))
         for path in self.spec.outputs:
             self._publishers[path] = declare_publisher(zsession, TOPICS[path], self.robot_id)
         health_topic = HEALTH_TOPICS[self.name]
@@ -123,6 +122,9 @@ class Service:
             zsession.declare_subscriber(TOPICS[path].key(self.robot_id), self._make_callback(path))
             for path in self.spec.inputs
         ]
+        # Alive means ready: the token appears only once the stage can take inputs (model loaded,
+        # subscribers declared), so whoever waits on it never publishes into the void.
+        token = zsession.liveliness().declare_token(liveliness_key(self.robot_id, self.name))
         worker = threading.Thread(target=self._work, name=f"{self.name}-worker", daemon=True)
         health = threading.Thread(target=self._health_loop, name=f"{self.name}-health", daemon=True)
         worker.start()

@@ -33,7 +33,9 @@ def run(args: argparse.Namespace) -> int:
         "e2e_latency_ms_p50": e2e["p50"],
         "e2e_latency_ms_p99": e2e["p99"],
         "e2e_latency_ms_max": e2e["max"],
-        "throughput_hz": e2e["n"] / summary["duration_s"] if summary["duration_s"] else 0.0,
+        "throughput_hz": summary["messages"].get(e2e["topic"], 0) / summary["duration_s"],
+        "valid_fraction": (summary["valid_messages"].get(e2e["topic"], 0)
+                           / max(summary["messages"].get(e2e["topic"], 0), 1)),
         "stages": {name: {k: s[k] for k in ("rate_out_hz", "latency_ms_p50", "latency_ms_p99", "dropped")}
                    for name, s in summary["stages"].items()},
         "drops": summary["drops"],

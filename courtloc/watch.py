@@ -203,6 +203,7 @@ class BusWatcher:
                 "services": list(self.config.launcher.services),
                 "stages": stages,
                 "messages": dict(state.counts),
+                "valid_messages": dict(state.valid_counts),
                 "poses": state.counts.get("infer/pose", 0),
                 "valid_poses": state.valid_counts.get("infer/pose", 0),
                 "solutions": state.counts.get("shooter_bridge/solution", 0),

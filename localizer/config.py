@@ -59,7 +59,7 @@ class LocalizerConfig(BaseModel):
     half: Half = Field("+x", description="the robot's half, used by 'half' mode and to start 'previous' mode")
     centre_margin_m: float = Field(0.3, ge=0,
                                    description="within this of x=0 the half rule picks by heading instead")
-    track_yaw_starts_rad: float = Field(0.06, ge=0, description="tracking also starts this far either side in yaw "
+    track_yaw_starts_rad: float = Field(0.15, ge=0, description="tracking also starts this far either side in yaw "
                                         "(0: one start)")
     track_max_jump_m: float = Field(0.5, gt=0, description="a tracked pose moving more than this is re-checked")
     fit: FitConfig = FitConfig()

@@ -43,6 +43,12 @@ class LocalizeResult:
     def quality(self) -> float:
         return self.fit.quality
 
+    @property
+    def trackable(self) -> bool:
+        """Good enough to start the next frame from, even if not valid: a degenerate frame (only parallel
+        lines) still pins yaw and one direction, and the free direction stays where tracking left it."""
+        return self.fit.valid or (self.mode == "track" and self.fit.n_inliers >= 12 and self.fit.inlier_ratio >= 0.5)
+
 
 class GeometricLocalizer:
     def __init__(self, court: Court, camera: CameraModel, config: LocalizerConfig | None = None,

@@ -34,6 +34,7 @@ class Prediction(BaseModel):
     n_inliers: int = 0
     position_std_m: Optional[float] = None
     alternatives: list[tuple[float, float, float]] = Field(default_factory=list)  # symmetry "both"
+    trackable: bool = False  # fine as the next frame's `previous` even when not valid (degenerate view)
 
 
 class Predictor(Protocol):
@@ -67,7 +68,7 @@ def _previous_pose(previous) -> Optional[np.ndarray]:
     if previous is None:
         return None
     if isinstance(previous, Prediction):
-        if not previous.valid or previous.yaw is None:
+        if not (previous.valid or previous.trackable) or previous.yaw is None:
             return None
         return np.array([previous.x, previous.y, previous.yaw])
     pose = np.asarray(previous, np.float64).reshape(-1)
@@ -100,7 +101,8 @@ class GeometricPredictor:
         return Prediction(x=x, y=y, yaw=yaw, quality=res.quality, valid=res.valid, mode=res.mode,
                           n_hits=res.fit.n_hits, n_inliers=res.fit.n_inliers,
                           position_std_m=res.fit.position_std_m if math.isfinite(res.fit.position_std_m) else None,
-                          alternatives=[tuple(float(v) for v in a) for a in res.alternatives])
+                          alternatives=[tuple(float(v) for v in a) for a in res.alternatives],
+                          trackable=res.trackable)
 
 
 class PaperPredictor:

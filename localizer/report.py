@@ -55,6 +55,13 @@ def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | 
         if "valid_only" in tr:
             lines.append(_row(f"tracking {tag}, valid only", tr["valid_only"]))
         lines.append(_row(f"cold start {tag}", cs["all"], f"valid {cs['valid_fraction']:.3f}; ms median {cs['ms_median']}"))
-    lines += ["", "Targets: mean <= 3 cm, p95 <= 7 cm, yaw median <= 0.4 deg. Times here are Python wall "
-              "times on a shared machine; use `courtloc bench localize` for speed.", ""]
+    verdict = []
+    for d in report["directions"]:
+        m = d["tracking"]["all"]
+        met = {"mean <= 3 cm": m["mean_err_m"] <= 0.03, "p95 <= 7 cm": m["p95_err_m"] <= 0.07,
+               "yaw median <= 0.4 deg": m.get("yaw_median_deg", 99) <= 0.4}
+        verdict.append(f"- {d['tuned_on']} -> {d['tested_on']} (tracking, all frames): "
+                       + ", ".join(f"{k} {'met' if v else 'NOT met'}" for k, v in met.items()))
+    lines += ["", "Targets, as computed from the table:", *verdict, "",
+              "Times here are Python wall times on a shared, loaded machine; use `courtloc bench localize`.", ""]
     return "\n".join(lines) + "\n"

@@ -120,8 +120,8 @@ def tune(court: Court, camera: CameraModel, frames: SeedFrames, indices: np.ndar
 
 def run_sequence(localizer: GeometricLocalizer, projector: FloorProjector, frames: SeedFrames,
                  indices: np.ndarray, tracking: bool = True, stale_after: int = 10) -> dict:
-    """Localise frames in order; with tracking, each starts from the last valid answer, which is dropped
-    (next frame: global search) after `stale_after` invalid frames in a row."""
+    """Localise frames in order; with tracking, each starts from the last valid (or trackable) answer,
+    dropped (next frame: global search) after `stale_after` invalid frames in a row."""
     poses, valid, modes, ms = [], [], [], []
     previous = None
     misses = 0
@@ -137,7 +137,9 @@ def run_sequence(localizer: GeometricLocalizer, projector: FloorProjector, frame
             previous, misses = res.pose, 0
         else:
             misses += 1
-            if misses >= stale_after:
+            if res.trackable:
+                previous = res.pose  # track through degenerate frames
+            elif misses >= stale_after:
                 previous = None
     return {"pose": np.array(poses), "valid": np.array(valid), "mode": np.array(modes), "ms": np.array(ms)}
 

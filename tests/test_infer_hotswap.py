@@ -77,6 +77,19 @@ def _poses_of(client: BusClient, seqs: set[int], timeout: float = 10.0) -> dict:
     return poses
 
 
+def _timings(poses: dict, seq: int) -> str:
+    """Publish-to-pose lag and inference time of the frames before `seq` (to tell a slow stage from a lost one)."""
+    rows = []
+    for s in range(seq - 4, seq + 3):
+        if s in poses:
+            stamps = {st.stage: st.mono_ns for st in poses[s].header.stamps}
+            lag = (stamps["infer"] - stamps["preprocess"]) / 1e6
+            rows.append(f"{s}: lag {lag:.1f} ms, infer {poses[s].infer_ms:.1f} ms")
+        else:
+            rows.append(f"{s}: lost")
+    return "; ".join(rows)
+
+
 def test_swap_under_30fps_loses_no_frame(robot: dict, frames: TwinFrames) -> None:
     client: BusClient = robot["client"]
     package = relabelled_package(robot["tmp"] / "swapped", "swapped")
@@ -106,7 +119,8 @@ def test_swap_under_30fps_loses_no_frame(robot: dict, frames: TwinFrames) -> Non
     streamer = threading.Thread(target=stream, daemon=True)
     streamer.start()
     try:
-        push = subprocess.run([*PYTHON, "model", "push", str(package), "--config", str(robot["config"]), "--json"],
+        # The pit laptop is another machine; niced, the CLI here does not take the robot's CPU from the stage.
+        push = subprocess.run(["nice", "-n", "10", *PYTHON, "model", "push", str(package), "--config", str(robot["config"]), "--json"],
                               capture_output=True, text=True, timeout=120)
     finally:
         swap_done.set()
@@ -124,7 +138,10 @@ def test_swap_under_30fps_loses_no_frame(robot: dict, frames: TwinFrames) -> Non
     # thread; the swap itself is one reference assignment between two frames, and the new model tracks
     # on from the last pose instead of starting a global search. So every seq gets its pose.
     missing = sorted(set(published) - set(poses))
-    assert not missing, f"{len(missing)} of {len(published)} frames got no pose: {missing[:20]}"
+    first_new = min((s for s, p in poses.items() if p.model_name == "swapped"), default=None)
+    assert not missing, f"{len(missing)} of {len(published)} frames got no pose: {missing[:20]}; " \
+                        f"first pose of the new model: seq {first_new}; around the first loss: " \
+                        f"{_timings(poses, missing[0]) if missing else ''}"
     assert len(published) > FRAMES_AFTER_SWAP + 15, "the push finished before the stream was under way"
 
     versions = [(poses[s].model_name, poses[s].model_version) for s in published]

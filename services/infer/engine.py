@@ -52,8 +52,13 @@ def is_on_court(court, x: float, y: float, margin: float) -> bool:  # noqa: ANN0
     return bool(court.contains(x, y, margin=margin))
 
 
-def load_model(stored: StoredModel, config: InferConfig, golden: GoldenSets | None) -> LoadedModel:
-    """Load and (when `golden` is given) validate; raises ModelRefused with the reason."""
+def load_model(stored: StoredModel, config: InferConfig, golden: GoldenSets | None,
+               pushed: bool = False) -> LoadedModel:
+    """Load and (when `golden` is given) validate; raises ModelRefused with the reason.
+
+    `pushed`: the model is entering the store, so its signature is checked (when required). Versions
+    already in the store were checked when they came in, and the bundled default ships unsigned.
+    """
     from courtloc.localizer.manifest import ManifestError, read_manifest, verify_weights
     from courtloc.localizer.predictor import load_predictor
     from courtloc.sim.court import load_court
@@ -66,7 +71,8 @@ def load_model(stored: StoredModel, config: InferConfig, golden: GoldenSets | No
     except Exception as exc:  # a truncated or non-ONNX file fails inside onnx's parser
         raise ModelRefused(f"not a readable ONNX model: {type(exc).__name__}: {exc}") from None
     if golden is not None:
-        _check_signature_file(stored.folder, config)
+        if pushed:
+            _check_signature_file(stored.folder, config)
         check_graph_signature(path, manifest)
         try:
             verify_weights(path)

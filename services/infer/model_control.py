@@ -23,7 +23,7 @@ class ModelHost(Protocol):
 
     store: ModelStore
 
-    def validate(self, stored: StoredModel) -> LoadedModel: ...
+    def validate(self, stored: StoredModel, pushed: bool = False) -> LoadedModel: ...
     def swap_in(self, model: LoadedModel) -> None: ...
     def start_shadow(self, model: LoadedModel | None) -> None: ...
     def active_ref(self) -> ModelRef | None: ...
@@ -81,7 +81,7 @@ class ModelControl:
         # Validate in place, before the version exists in the store: a refused model leaves no trace.
         candidate = StoredModel(ModelRef(name=name, version=self.host.store.next_version(name)), folder)
         try:
-            loaded = self.host.validate(candidate)
+            loaded = self.host.validate(candidate, pushed=True)
         except ModelRefused:
             self.uploads.abort(body.upload_id)
             raise

@@ -61,12 +61,21 @@ class InferService(Service):
     def on_start(self) -> None:
         self.active = self._load_active()
         self.log.info("serving model %s", self.active.ref)
+        self._prepare_golden(self.active)
         assert self.session is not None
         control = CONTROLS["infer/model"]
         # The callback only queues the query; requests are answered on our own control thread.
         self._queryable = self.session.declare_queryable(control.key(self.robot_id), self._enqueue_query)
         self._control_thread = threading.Thread(target=self._serve_control, name="infer-control", daemon=True)
         self._control_thread.start()
+
+    def _prepare_golden(self, model: LoadedModel) -> None:
+        """Render the golden inputs of the serving model's court now, before frames flow: rendering them at
+        the first push would hold the GIL for tens of ms at a time while the worker serves frames."""
+        try:
+            self.golden.get(model.manifest.court, model.manifest.camera)
+        except Exception as exc:  # no golden set for this court: a push will be refused with the reason
+            self.record_error("model", f"no golden inputs for {model.ref}: {exc}")
 
     def _load_active(self) -> LoadedModel:
         """The store's active model; a fresh store gets the bundled default as version 1."""
@@ -142,9 +151,9 @@ class InferService(Service):
         assert self._queryable is not None
         while not self.stop_event.is_set():
             try:
-                query = self._queryable.recv()
-            except Exception:  # the queryable was undeclared at shutdown
-                return
+                query = self._queries.get(timeout=0.5)  # wakes up to notice a shutdown
+            except queue.Empty:
+                continue
             # Dropping the query finalises it; until then the asker does not get the reply (a query
             # kept alive in the loop variable would hold it until the next request arrived).
             with query:
@@ -167,12 +176,15 @@ class InferService(Service):
             self.record_error("control", f"cannot answer model request: {exc}")
 
     # ModelHost, for ModelControl
-    def validate(self, stored: StoredModel) -> LoadedModel:
-        return load_model(stored, self.config, golden=self.golden)
+    def validate(self, stored: StoredModel, pushed: bool = False) -> LoadedModel:
+        return load_model(stored, self.config, golden=self.golden, pushed=pushed)
 
     def swap_in(self, model: LoadedModel) -> None:
-        self.active = model  # a single reference assignment: the worker sees the old or the new model
-        self.previous = None
+        old, self.active = self.active, model  # one reference assignment: the worker sees the old or the new model
+        if old is None or old.manifest.court != model.manifest.court:
+            # The previous pose is in court coordinates: the new model of the same court tracks on from it
+            # (a cold-start search takes several frame periods, and frames would be skipped meanwhile).
+            self.previous = None
         self.swaps += 1
         self.log.info("now serving model %s", model.ref)
 

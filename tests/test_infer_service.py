@@ -1,0 +1,189 @@
+"""The infer stage as its own process on a real router, driven the way the pit drives it: Edges of rendered
+twin frames in, poses out, and `courtloc model ...` run as a separate process. This robot requires signed
+models, so every push here is signed with the test's key unless the test is about signatures."""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+from pathlib import Path
+from typing import Any, Iterator
+
+import pytest
+
+from buskit import PYTHON, BusClient, free_port, start_router, start_stage, write_config
+from courtloc.common import codec
+from courtloc.common.messages import Pose
+from courtloc.security.signing import generate_signing_key, sign_model, write_signing_keys
+from courtloc.services.infer.store import INCOMING, ModelStore
+from infer_models import TwinFrames, bundled_default, tiny_paper_model, truncated_copy
+
+pytestmark = pytest.mark.integration
+
+TRUTH = (2.0, -1.5, 0.4)  # in the half the default package resolves the court's symmetry to
+
+
+class Robot:
+    """Router + infer stage + a bus client playing the preprocess stage."""
+
+    def __init__(self, tmp: Path) -> None:
+        self.tmp = tmp
+        self.key = generate_signing_key()
+        write_signing_keys(self.key, tmp / "sign.key", tmp / "sign.pub")
+        self.port = free_port()
+        self.router = start_router(self.port)
+        self.store_dir = tmp / "store"
+        self.config = write_config(tmp / "robot.toml", self.port, f"""
+[infer]
+store = "{self.store_dir}"
+require_signature = true
+signing_public_key = "{tmp / 'sign.pub'}"
+""")
+        self.client = BusClient(self.port)
+        self.client.subscribe("infer/pose")
+        self.client.subscribe("infer/shadow_pose")
+        self.frames = TwinFrames([TRUTH])
+        self.seq = 0
+        self.infer = self.start()
+
+    def start(self):  # noqa: ANN201 - buskit.Proc
+        self.infer = start_stage("infer", self.config)
+        self.infer.wait_line("infer running for robot", timeout=60)
+        return self.infer
+
+    def pose(self) -> Pose:
+        """Publish one frame and return its pose (the first frame may precede the route: try again)."""
+        for _ in range(10):
+            self.seq += 1
+            seq = self.seq
+            self.client.put_raw("preprocess/edges", codec.encode(self.frames.edges(0, seq)))
+            try:
+                return self.client.wait_for("infer/pose", lambda p: p.header.seq == seq, timeout=5.0)
+            except AssertionError:
+                continue
+        raise AssertionError("no pose from the infer stage")
+
+    def model(self, *args: str) -> tuple[int, dict[str, Any]]:
+        """`courtloc model ARGS --json` as its own (niced: the pit is another machine) process."""
+        done = subprocess.run(["nice", "-n", "10", *PYTHON, "model", *args, "--config", str(self.config), "--json"],
+                              capture_output=True, text=True, timeout=120)
+        assert done.stdout, done.stderr
+        return done.returncode, json.loads(done.stdout)
+
+    def stored(self) -> set[tuple[str, int]]:
+        return {(m.ref.name, m.ref.version) for m in ModelStore(self.store_dir).models()}
+
+    def signed_tiny(self, name: str, **kwargs: Any) -> Path:
+        path = tiny_paper_model(self.tmp / name / "model.onnx", name, **kwargs)
+        sign_model(path, self.key)
+        return path
+
+    def close(self) -> None:
+        self.client.close()
+        self.infer.stop()
+        self.router.stop()
+
+
+@pytest.fixture(scope="module")
+def robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
+    robot = Robot(tmp_path_factory.mktemp("infer"))
+    try:
+        yield robot
+    finally:
+        robot.close()
+
+
+def test_fresh_store_serves_the_bundled_default(robot: Robot) -> None:
+    pose = robot.pose()
+    assert pose.header.valid, pose.reason
+    assert (pose.model_name, pose.model_version) == ("default", 1)
+    assert math.hypot(pose.x - TRUTH[0], pose.y - TRUTH[1]) < 0.1
+    assert pose.yaw is not None and abs(math.degrees(pose.yaw - TRUTH[2])) < 2.0
+    code, reply = robot.model("list")
+    assert code == 0 and [(m["name"], m["version"], m["active"], m["input_kind"]) for m in reply["models"]] == [
+        ("default", 1, True, "scan_hits")]
+
+
+def _bad_model(robot: Robot, case: str) -> Path:
+    if case == "truncated":
+        path = truncated_copy(bundled_default() / "model.onnx", robot.tmp / case / "model.onnx")
+        sign_model(path, robot.key)
+        return path
+    if case == "wrong_input_shape":
+        return robot.signed_tiny(case, graph_rows=240)
+    if case == "nan_output":
+        return robot.signed_tiny(case, nan=True)
+    if case == "sha256_mismatch":
+        return robot.signed_tiny(case, corrupt_after_manifest=True)
+    if case == "unsigned":
+        return tiny_paper_model(robot.tmp / case / "model.onnx", case)
+    assert case == "tampered"
+    path = robot.signed_tiny(case)
+    tiny_paper_model(path, case, xy=(3.0, 2.0))  # a valid model, but not the one that was signed
+    return path
+
+
+@pytest.mark.parametrize("case, reason", [
+    ("truncated", "not a readable ONNX model"),
+    ("wrong_input_shape", "the manifest says float32[1, 280, 640]"),
+    ("nan_output", "non-finite"),
+    ("sha256_mismatch", "sha256"),
+    ("unsigned", "signature: cannot read model signature"),
+    ("tampered", "signature: model content does not match"),
+])
+def test_bad_model_is_refused_while_the_old_one_serves(robot: Robot, case: str, reason: str) -> None:
+    serving = robot.pose()
+    stored = robot.stored()
+    code, reply = robot.model("push", str(_bad_model(robot, case)))
+    assert code == 1 and not reply["ok"] and reason in reply["reason"], reply
+    after = robot.pose()
+    assert after.header.valid and (after.model_name, after.model_version) == (serving.model_name,
+                                                                               serving.model_version)
+    assert robot.stored() == stored, "a refused model left a version in the store"
+    assert not any((robot.store_dir / INCOMING).iterdir()), "a refused upload was left behind"
+
+
+def test_activate_rollback_and_shadow(robot: Robot) -> None:
+    code, reply = robot.model("push", str(robot.signed_tiny("tiny")))
+    assert code == 0 and (reply["name"], reply["version"]) == ("tiny", 1), reply
+    tiny = robot.pose()
+    assert (tiny.model_name, tiny.model_version) == ("tiny", 1) and tiny.header.valid
+
+    code, reply = robot.model("shadow", "1", "--name", "default")
+    assert code == 0 and reply["ok"], reply
+    robot.client.drain("infer/shadow_pose")
+    robot.pose()
+    shadow = robot.client.wait_for("infer/shadow_pose", timeout=10.0)
+    assert (shadow.model_name, shadow.model_version) == ("default", 1)
+    robot.pose()
+    code, reply = robot.model("shadow", "status")
+    assert code == 0
+    assert [m["name"] for m in reply["models"] if m["shadow"]] == ["default"]
+    stats = reply["shadow"]
+    assert stats["n"] >= 1
+    # The statistics are the distance between the two models' answers to the same frames.
+    assert stats["mean_diff_m"] == pytest.approx(math.hypot(tiny.x - shadow.x, tiny.y - shadow.y), abs=0.05)
+    code, reply = robot.model("shadow", "off")
+    assert code == 0 and reply["reason"] == "shadow stopped"
+
+    code, reply = robot.model("rollback")
+    assert code == 0 and (reply["name"], reply["version"]) == ("default", 1), reply
+    assert robot.pose().model_name == "default"
+    code, reply = robot.model("activate", "1", "--name", "tiny")
+    assert code == 0 and reply["name"] == "tiny", reply
+    assert robot.pose().model_name == "tiny"
+    code, reply = robot.model("rollback")
+    assert code == 0 and robot.pose().model_name == "default"
+
+
+def test_active_version_survives_a_restart(robot: Robot) -> None:
+    code, reply = robot.model("push", str(robot.signed_tiny("kept", xy=(-1.0, 1.0))))
+    assert code == 0, reply
+    assert robot.pose().model_name == "kept"
+    assert robot.infer.stop() == 0, robot.infer.output()
+    robot.client.wait_alive("infer", alive=False)
+    robot.start()
+    pose = robot.pose()
+    assert (pose.model_name, pose.model_version) == ("kept", 1) and pose.header.valid
+    code, reply = robot.model("list")
+    assert [(m["name"], m["version"]) for m in reply["models"] if m["active"]] == [("kept", 1)]
