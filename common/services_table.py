@@ -38,7 +38,7 @@ class Topic:
         return f"{self.service}/{self.name}"
 
     def key(self, robot_id: str) -> str:
-        return f"{ROOT}/{check_robot_id(robot_id)}/{self.path}"
+        return key_of(robot_id, self.path)
 
 
 @dataclass(frozen=True)
@@ -47,6 +47,11 @@ class ServiceSpec:
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
     doc: str
+
+
+def key_of(robot_id: str, path: str) -> str:
+    """The one place a key expression is put together: courtloc/<robot_id>/<service>/<topic>."""
+    return f"{ROOT}/{check_robot_id(robot_id)}/{path}"
 
 
 def check_robot_id(robot_id: str) -> str:
@@ -110,7 +115,7 @@ class Control:
         return f"{self.service}/{self.name}"
 
     def key(self, robot_id: str) -> str:
-        return f"{ROOT}/{check_robot_id(robot_id)}/{self.path}"
+        return key_of(robot_id, self.path)
 
 
 PIT = "pit"
@@ -125,11 +130,11 @@ CONTROLS: dict[str, Control] = {
 
 
 def liveliness_key(robot_id: str, service: str) -> str:
-    return f"{ROOT}/{check_robot_id(robot_id)}/{service}/alive"
+    return key_of(robot_id, f"{service}/alive")
 
 
 def all_liveliness_key(robot_id: str) -> str:
-    return f"{ROOT}/{check_robot_id(robot_id)}/*/alive"
+    return key_of(robot_id, "*/alive")
 
 
 def service_of_liveliness_key(key: str) -> str:
@@ -137,12 +142,12 @@ def service_of_liveliness_key(key: str) -> str:
 
 
 def all_health_key(robot_id: str) -> str:
-    return f"{ROOT}/{check_robot_id(robot_id)}/*/health"
+    return key_of(robot_id, "*/health")
 
 
 def robot_wildcard_key(robot_id: str) -> str:
     """Every key of one robot (recorders, monitors, access rules)."""
-    return f"{ROOT}/{check_robot_id(robot_id)}/**"
+    return key_of(robot_id, "**")
 
 
 def topic_of_key(key: str) -> Topic | None:

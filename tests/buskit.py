@@ -204,3 +204,23 @@ def write_config(path: Path, port: int, body: str = "", robot_id: str = "robot1"
     return path
 
 
+
+
+def write_line_frames(folder: Path, n: int = 3, size: tuple[int, int] = (480, 640)) -> Path:
+    """`n` PNG frames of a grey floor with one white line each (so preprocess finds hits)."""
+    import cv2
+    import numpy as np
+
+    folder.mkdir(parents=True, exist_ok=True)
+    height, width = size
+    for i in range(n):
+        image = np.full((height, width, 3), 60, np.uint8)
+        cv2.line(image, (0, height * 5 // 8 + 20 * i), (width - 1, height * 11 // 16), (255, 255, 255), 4)
+        cv2.imwrite(str(folder / f"{i}.png"), image)
+    return folder
+
+
+def folder_camera_toml(folder: Path, fps: float = 20, extra: str = "") -> str:
+    """The [camera] tables of a deployment whose camera replays PNGs from `folder`."""
+    return (f'[camera]\nsource = "folder"\nfps = {fps}\n{extra}\n'
+            f'[camera.folder]\npath = "{folder}"\npattern = "*.png"\n')

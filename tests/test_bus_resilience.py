@@ -3,28 +3,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
-import numpy as np
 import pytest
 
-from buskit import BusClient, free_port, start_router, start_stage, write_config
+from buskit import BusClient, folder_camera_toml, free_port, start_router, start_stage, write_config, write_line_frames
 
 pytestmark = pytest.mark.integration
 
 
 def _camera_config(tmp_path: Path, port: int) -> Path:
-    folder = tmp_path / "frames"
-    folder.mkdir()
-    for i in range(3):
-        cv2.imwrite(str(folder / f"{i}.png"), np.full((24, 32, 3), i, np.uint8))
-    return write_config(tmp_path / "cam.toml", port, f"""
-[camera]
-source = "folder"
-fps = 20
-[camera.folder]
-path = "{folder}"
-pattern = "*.png"
-""")
+    folder = write_line_frames(tmp_path / "frames", size=(24, 32))
+    return write_config(tmp_path / "cam.toml", port, folder_camera_toml(folder))
 
 
 def test_stage_started_before_router_connects_when_it_appears(tmp_path: Path) -> None:

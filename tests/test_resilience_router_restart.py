@@ -9,11 +9,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import cv2
-import numpy as np
 import pytest
 
-from buskit import BusClient, free_port, start_router, start_stage, write_config
+from buskit import BusClient, folder_camera_toml, free_port, start_router, start_stage, write_config, write_line_frames
 from courtloc.deployment import available_stages
 
 pytestmark = pytest.mark.integration
@@ -22,20 +20,8 @@ RESUME_DEADLINE_S = 2.0
 
 
 def _chain_config(tmp_path: Path, port: int) -> Path:
-    folder = tmp_path / "frames"
-    folder.mkdir()
-    for i in range(3):
-        image = np.full((480, 640, 3), 60, np.uint8)
-        cv2.line(image, (0, 320 + 20 * i), (639, 330), (255, 255, 255), 4)
-        cv2.imwrite(str(folder / f"{i}.png"), image)
-    return write_config(tmp_path / "chain.toml", port, f"""
-[camera]
-source = "folder"
-fps = 20
-[camera.folder]
-path = "{folder}"
-pattern = "*.png"
-""")
+    folder = write_line_frames(tmp_path / "frames")
+    return write_config(tmp_path / "chain.toml", port, folder_camera_toml(folder))
 
 
 def _bundled_model_present() -> bool:

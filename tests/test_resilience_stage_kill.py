@@ -12,11 +12,9 @@ import threading
 import time
 from pathlib import Path
 
-import cv2
-import numpy as np
 import pytest
 
-from buskit import PYTHON, BusClient, Proc, endpoint, free_port
+from buskit import PYTHON, BusClient, Proc, endpoint, folder_camera_toml, free_port, write_line_frames
 from courtloc.bench_soak import child_processes
 from courtloc.common.bus import ZenohConfig, open_session
 
@@ -47,12 +45,7 @@ def wait_for_router(port: int, timeout: float = 60.0) -> None:
 
 
 def _up_config(tmp_path: Path, port: int) -> Path:
-    folder = tmp_path / "frames"
-    folder.mkdir()
-    for i in range(3):
-        image = np.full((480, 640, 3), 60, np.uint8)
-        cv2.line(image, (0, 300 + 20 * i), (639, 330), (255, 255, 255), 4)
-        cv2.imwrite(str(folder / f"{i}.png"), image)
+    folder = write_line_frames(tmp_path / "frames")
     config = tmp_path / "up.toml"
     config.write_text(f"""robot_id = "robot1"
 [zenoh]
@@ -64,13 +57,7 @@ listen = ["{endpoint(port)}"]
 [launcher]
 services = ["camera", "preprocess"]
 restart_backoff_s = 0.5
-[camera]
-source = "folder"
-fps = 20
-[camera.folder]
-path = "{folder}"
-pattern = "*.png"
-""")
+{folder_camera_toml(folder)}""")
     return config
 
 

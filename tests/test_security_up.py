@@ -6,11 +6,9 @@ import json
 import threading
 from pathlib import Path
 
-import cv2
-import numpy as np
 import pytest
 
-from buskit import PYTHON, Proc, free_port
+from buskit import PYTHON, Proc, folder_camera_toml, free_port, write_line_frames
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.security import SecurityConfig
@@ -22,12 +20,7 @@ pytestmark = pytest.mark.integration
 
 def test_secure_up_runs_the_chain_and_the_pit_reads_it(tmp_path: Path) -> None:
     bundles = init_bundles(tmp_path / "secrets", "robot1", ["robot1.local"], "team A")
-    folder = tmp_path / "frames"
-    folder.mkdir()
-    for i in range(3):
-        image = np.full((480, 640, 3), 60, np.uint8)
-        cv2.line(image, (0, 300 + 20 * i), (639, 330), (255, 255, 255), 4)
-        cv2.imwrite(str(folder / f"{i}.png"), image)
+    folder = write_line_frames(tmp_path / "frames")
     port = free_port()
     endpoint = f"tls/127.0.0.1:{port}"
     config = tmp_path / "robot.toml"
@@ -43,13 +36,7 @@ listen = ["{endpoint}"]
 secure_dir = "secrets/robot"
 [launcher]
 services = ["camera", "preprocess"]
-[camera]
-source = "folder"
-fps = 20
-[camera.folder]
-path = "{folder}"
-pattern = "*.png"
-""")
+{folder_camera_toml(folder)}""")
     summary = tmp_path / "summary.json"
     up = Proc([*PYTHON, "up", "--config", str(config), "--summary-json", str(summary)]).start()
     give_up = threading.Event()
