@@ -6,13 +6,13 @@ import json
 import sys
 from pathlib import Path
 
+from courtloc.recording.busargs import add_client_arguments, client_deployment
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     model = sub.add_parser("model", help="push, list, activate, roll back or shadow models on a robot")
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--robot", default=None, help="robot id (default: the config's)")
-    common.add_argument("--config", type=Path, default=None, help="deployment TOML (e.g. deploy/configs/pit.toml)")
-    common.add_argument("--connect", action="append", default=None, help="router endpoint, e.g. tcp/robot1.local:7447")
+    add_client_arguments(common)
     common.add_argument("--json", action="store_true", help="print the robot's reply as JSON")
     ops = model.add_subparsers(dest="model_op", metavar="OP", required=True)
 
@@ -36,20 +36,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from courtloc.common.bus import open_session
-    from courtloc.common.config_loader import ConfigError
-    from courtloc.deployment import load_deployment
     from courtloc.model_client import ModelClient, ModelClientError
 
     try:
-        config = load_deployment(args.config)
-    except ConfigError as exc:
+        config = client_deployment(args)
+    except ValueError as exc:  # ConfigError included: a bad file or a missing credential, named
         print(exc, file=sys.stderr)
         return 2
-    zcfg = config.zenoh.model_copy(update={"mode": "client", **({"connect": args.connect} if args.connect else {})})
-    session = open_session(zcfg)
+    session = open_session(config.zenoh)
     assert session is not None
     try:
-        client = ModelClient(session, args.robot or config.robot_id)
+        client = ModelClient(session, config.robot_id)
         if args.action == "push":
             def progress(done: int, total: int) -> None:
                 print(f"\rpushed {done / 2**20:8.1f} / {total / 2**20:.1f} MiB", end="", file=sys.stderr)
