@@ -120,8 +120,8 @@ def test_swap_under_30fps_loses_no_frame(robot: dict, frames: TwinFrames) -> Non
     streamer.start()
     try:
         # The pit laptop is another machine; niced, the CLI here does not take the robot's CPU from the stage.
-        push = subprocess.run(["nice", "-n", "10", *PYTHON, "model", "push", str(package), "--config", str(robot["config"]), "--json"],
-                              capture_output=True, text=True, timeout=120)
+        push = subprocess.run(["nice", "-n", "10", *PYTHON, "model", "push", str(package),
+                               "--config", str(robot["config"]), "--json"], capture_output=True, text=True, timeout=120)
     finally:
         swap_done.set()
     streamer.join(timeout=30)
@@ -135,7 +135,7 @@ def test_swap_under_30fps_loses_no_frame(robot: dict, frames: TwinFrames) -> Non
     # No frame is lost. The stage keeps one pending frame per input (latest-only), so a frame is lost only
     # if the worker is busy for a whole frame period (33 ms) when the next one arrives. Tracking takes a
     # few ms per frame; storing, validating, loading and warming the new model happen on the control
-    # thread; the swap itself is one reference assignment between two frames, and the new model tracks
+    # thread (its golden frames were rendered at start-up, so it never holds the GIL for long); the swap itself is one reference assignment between two frames, and the new model tracks
     # on from the last pose instead of starting a global search. So every seq gets its pose.
     missing = sorted(set(published) - set(poses))
     first_new = min((s for s, p in poses.items() if p.model_name == "swapped"), default=None)

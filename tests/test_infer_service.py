@@ -115,6 +115,10 @@ def _bad_model(robot: Robot, case: str) -> Path:
         return robot.signed_tiny(case, nan=True)
     if case == "sha256_mismatch":
         return robot.signed_tiny(case, corrupt_after_manifest=True)
+    if case == "name_outside_the_store":
+        path = tiny_paper_model(robot.tmp / case / "model.onnx", "../../escape")
+        sign_model(path, robot.key)
+        return path
     if case == "unsigned":
         return tiny_paper_model(robot.tmp / case / "model.onnx", case)
     assert case == "tampered"
@@ -128,6 +132,7 @@ def _bad_model(robot: Robot, case: str) -> Path:
     ("wrong_input_shape", "the manifest says float32[1, 280, 640]"),
     ("nan_output", "non-finite"),
     ("sha256_mismatch", "sha256"),
+    ("name_outside_the_store", "is not a plain name"),
     ("unsigned", "signature: cannot read model signature"),
     ("tampered", "signature: model content does not match"),
 ])

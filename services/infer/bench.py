@@ -67,6 +67,20 @@ def _load_hits(path: Path) -> tuple[list[np.ndarray], int, int]:
     return frames, int(data["width"]), int(data["height"])
 
 
+def peak_rss_mb() -> float:
+    """This process's own peak resident set: VmHWM (per address space, so it starts afresh at exec; a
+    child's ru_maxrss can carry its parent's peak over the fork). ru_maxrss where /proc is absent."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def _worker_model(args: argparse.Namespace) -> int:
     from courtloc.localizer.predictor import load_predictor
     from courtloc.services.infer.engine import available_providers
@@ -87,7 +101,8 @@ def _worker_model(args: argparse.Namespace) -> int:
             previous = (pred.x, pred.y, pred.yaw)
     ms = np.asarray(times) * 1e3
     print(json.dumps({"name": predictor.manifest.name, "form": predictor.manifest.input.kind,
-                      "latency_ms_p50": float(np.percentile(ms, 50)), "latency_ms_p99": float(np.percentile(ms, 99))}))
+                      "latency_ms_p50": float(np.percentile(ms, 50)), "latency_ms_p99": float(np.percentile(ms, 99)),
+                      "peak_rss_mb": peak_rss_mb()}))
     return 0
 
 
@@ -152,18 +167,14 @@ def _worker_swap(args: argparse.Namespace) -> int:
     return 0
 
 
-def _child(args: argparse.Namespace, extra: list[str]) -> tuple[dict, float]:
-    """Run a worker; its JSON line and its own peak RSS in MB."""
+def _child(args: argparse.Namespace, extra: list[str]) -> dict:
+    """Run a worker (its own process, so what it loads is measured alone); its JSON line."""
     cmd = [sys.executable, "-c", "from courtloc.cli import main; main()", "bench", "infer", "--json", os.devnull,
            "--threads", str(args.threads), "--hits", str(args.hits), *extra]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
-    assert proc.stdout is not None
-    out = proc.stdout.read()
-    proc.stdout.close()
-    _, status, usage = os.wait4(proc.pid, 0)  # this child's own peak RSS (ru_maxrss, KiB on Linux)
-    if os.waitstatus_to_exitcode(status):
-        raise SystemExit(f"benchmark worker {extra} failed")
-    return json.loads(out.strip().splitlines()[-1]), usage.ru_maxrss / 1024
+    done = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
+    if done.returncode:
+        raise SystemExit(f"benchmark worker {extra} failed (exit {done.returncode})")
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def paper_models(path: Path) -> list[Path]:
@@ -192,11 +203,10 @@ def run(args: argparse.Namespace) -> int:
         _render_hits(max(args.frames, 2), args.hits)
         rows = []
         for model in models:
-            row, rss = _child(args, ["--worker", "model", "--model", str(model)])
-            row["peak_rss_mb"] = rss
+            row = _child(args, ["--worker", "model", "--model", str(model)])
             rows.append(row)
             print(json.dumps(row), file=sys.stderr)
-        swap, _ = _child(args, ["--worker", "swap"])
+        swap = _child(args, ["--worker", "swap"])
     print(f"swap: {json.dumps(swap)}", file=sys.stderr)
     if not swap["ok"]:
         raise SystemExit("the swap in the benchmark was refused")

@@ -6,13 +6,14 @@ worker, and the worker only ever sees a complete, validated, warmed-up model.
 from __future__ import annotations
 
 import logging
+import re
 from typing import Protocol
 
 from courtloc.common.control import (
     Activate, ListModels, ModelInfo, ModelReply, ModelRequest, PushBegin, PushChunk, PushCommit, Rollback, Shadow,
 )
 from courtloc.services.infer.engine import LoadedModel, ModelRefused
-from courtloc.services.infer.store import ModelRef, ModelStore, StoreError, StoredModel
+from courtloc.services.infer.store import MODEL_NAME_PATTERN, ModelRef, ModelStore, StoreError, StoredModel
 from courtloc.services.infer.uploads import UploadError, Uploads
 
 log = logging.getLogger(__name__)
@@ -55,7 +56,7 @@ class ModelControl:
                 return self._activate(self.host.store.get(self.host.store.rollback_target()), rollback=True)
             if isinstance(body, Shadow):
                 return self._shadow(body)
-        except (UploadError, StoreError, ModelRefused) as exc:
+        except (UploadError, StoreError, ModelRefused, ValueError) as exc:  # ValueError: a bad name or version
             log.warning("model request %s refused: %s", body.op, exc)
             return ModelReply(ok=False, reason=str(exc))
         return ModelReply(ok=False, reason=f"unknown request {body.op}")
@@ -78,6 +79,9 @@ class ModelControl:
         except Exception as exc:
             self.uploads.abort(body.upload_id)
             raise ModelRefused(f"not a readable ONNX model: {type(exc).__name__}: {exc}") from None
+        if not re.match(MODEL_NAME_PATTERN, name):
+            self.uploads.abort(body.upload_id)
+            raise ModelRefused(f"manifest name {name!r} is not a plain name (letters, digits, '_', '.', '-')")
         # Validate in place, before the version exists in the store: a refused model leaves no trace.
         candidate = StoredModel(ModelRef(name=name, version=self.host.store.next_version(name)), folder)
         try:

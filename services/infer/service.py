@@ -23,6 +23,7 @@ from courtloc.services.infer.golden import GoldenSets
 from courtloc.services.infer.model_control import ModelControl
 from courtloc.services.infer.shadow import ShadowRunner
 from courtloc.services.infer.store import ModelRef, ModelStore, StoredModel
+from courtloc.services.infer.tracking import Tracker
 from courtloc.services.infer.uploads import Uploads
 from courtloc.services.preprocess.pipeline import hits_from_bytes
 
@@ -50,7 +51,7 @@ class InferService(Service):
         self.golden = GoldenSets()
         self.active: LoadedModel | None = None
         self.shadow: ShadowRunner | None = None
-        self.previous: tuple[float, float, float] | None = None
+        self.tracker = Tracker()
         self.swaps = 0
         self._control = ModelControl(self, Uploads(self.store, int(config.max_upload_mb * 2**20)))
         self._control_thread: threading.Thread | None = None
@@ -102,16 +103,14 @@ class InferService(Service):
             return
         model = self.active  # one read: a swap between frames never splits a frame across two models
         assert model is not None
-        pose = self.make_pose(model, message, hits, fresh=fresh, previous=self.previous)
+        pose = self.make_pose(model, message, hits, fresh=fresh, tracker=self.tracker)
         self.publish("infer/pose", pose)
-        if pose.header.valid and pose.yaw is not None:
-            self.previous = (pose.x, pose.y, pose.yaw)
         shadow = self.shadow
         if shadow is not None:
             shadow.offer(message, hits, pose)
 
-    def make_pose(self, model: LoadedModel, edges: Edges, hits: np.ndarray, fresh: bool = True,
-                  previous: tuple[float, float, float] | None = None) -> Pose:
+    def make_pose(self, model: LoadedModel, edges: Edges, hits: np.ndarray, fresh: bool, tracker: Tracker) -> Pose:
+        """The pose of one frame; `tracker` gives the start and learns from the result."""
         start = time.perf_counter()
         reason = ""
         x = y = 0.0
@@ -121,8 +120,9 @@ class InferService(Service):
         if len(hits) == 0:
             reason = "no_hits"
         else:
-            pred = model.predictor.predict(hits, edges.width, edges.height, previous=previous)
+            pred = model.predictor.predict(hits, edges.width, edges.height, previous=tracker.previous)
             x, y, yaw, quality = float(pred.x), float(pred.y), pred.yaw, float(pred.quality)
+            tracker.update(x, y, yaw, pred.valid, pred.trackable)
             finite = all(math.isfinite(v) for v in (x, y, *(() if yaw is None else (yaw,))))
             if not finite:
                 reason, x, y, yaw = "non_finite", 0.0, 0.0, None
@@ -184,7 +184,7 @@ class InferService(Service):
         if old is None or old.manifest.court != model.manifest.court:
             # The previous pose is in court coordinates: the new model of the same court tracks on from it
             # (a cold-start search takes several frame periods, and frames would be skipped meanwhile).
-            self.previous = None
+            self.tracker.reset()
         self.swaps += 1
         self.log.info("now serving model %s", model.ref)
 
@@ -194,7 +194,7 @@ class InferService(Service):
             old.stop()
         if model is not None:
             self.shadow = ShadowRunner(model, lambda pose: self.publish("infer/shadow_pose", pose),
-                                       lambda m, edges, hits, prev: self.make_pose(m, edges, hits, previous=prev))
+                                       lambda m, edges, hits, tracker: self.make_pose(m, edges, hits, True, tracker))
 
     def active_ref(self) -> ModelRef | None:
         return self.active.ref if self.active is not None else None

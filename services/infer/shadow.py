@@ -13,6 +13,7 @@ import numpy as np
 from courtloc.common.control import ShadowStats
 from courtloc.common.inbox import LatestInbox
 from courtloc.common.messages import Edges, Pose
+from courtloc.services.infer.tracking import Tracker
 
 
 class ShadowRunner:
@@ -25,7 +26,7 @@ class ShadowRunner:
         self._diffs: deque[float] = deque(maxlen=1000)
         self._yaw_diffs: deque[float] = deque(maxlen=1000)
         self._lock = threading.Lock()
-        self._previous: tuple[float, float, float] | None = None  # the candidate tracks on its own poses
+        self._tracker = Tracker()  # the candidate tracks on its own poses
         self._thread = threading.Thread(target=self._run, name="infer-shadow", daemon=True)
         self._thread.start()
 
@@ -38,10 +39,8 @@ class ShadowRunner:
             if delivery is None:
                 continue
             edges, hits, active = delivery.payload
-            pose = self._make_pose(self.model, edges, hits, self._previous)
+            pose = self._make_pose(self.model, edges, hits, self._tracker)
             self._publish(pose)
-            if pose.header.valid and pose.yaw is not None:
-                self._previous = (pose.x, pose.y, pose.yaw)
             if pose.header.valid and active.header.valid:
                 with self._lock:
                     self._diffs.append(math.hypot(pose.x - active.x, pose.y - active.y))

@@ -14,6 +14,7 @@ import hashlib
 import json
 import logging
 import os
+import re
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,9 +32,13 @@ class StoreError(RuntimeError):
     pass
 
 
+MODEL_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$"
+
+
 class ModelRef(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
-    name: str
+    # A folder name in the store: a manifest name like "../x" or "a/b" must not place files outside it.
+    name: str = Field(pattern=MODEL_NAME_PATTERN)
     version: int = Field(ge=1)
 
     def __str__(self) -> str:
@@ -94,7 +99,8 @@ class ModelStore:
     # ---- reading ---------------------------------------------------------------------------
     def models(self) -> list[StoredModel]:
         found = []
-        for name_dir in sorted(p for p in self.root.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        # Not every folder is a model name (.incoming, a filesystem's lost+found).
+        for name_dir in sorted(p for p in self.root.iterdir() if p.is_dir() and re.match(MODEL_NAME_PATTERN, p.name)):
             for version_dir in name_dir.iterdir():
                 if version_dir.name.isdigit() and (version_dir / MODEL_FILE).is_file():
                     found.append(StoredModel(ModelRef(name=name_dir.name, version=int(version_dir.name)),

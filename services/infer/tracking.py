@@ -1,0 +1,30 @@
+"""What the next frame starts from: the previous pose, kept while it is still worth tracking from.
+
+A valid pose is kept. A pose that is not valid but still trackable (a degenerate view: only parallel
+lines, the position along them unknown) is kept too, so the tracker rides through it. After too many
+frames without either, the previous pose is dropped and the model searches the court again, so a robot
+that lost track recovers instead of fitting to a stale guess forever.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class Tracker:
+    max_lost_frames: int = 10
+    previous: tuple[float, float, float] | None = None
+    lost_frames: int = 0
+
+    def update(self, x: float, y: float, yaw: float | None, valid: bool, trackable: bool) -> None:
+        if yaw is not None and (valid or trackable):
+            self.previous = (x, y, yaw)
+            self.lost_frames = 0
+            return
+        self.lost_frames += 1
+        if self.lost_frames > self.max_lost_frames:
+            self.previous = None
+
+    def reset(self) -> None:
+        self.previous = None
+        self.lost_frames = 0
