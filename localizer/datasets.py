@@ -154,8 +154,9 @@ class Dataset:
     def hits(self, i: int) -> tuple[np.ndarray, int, int]:
         """(hits N x 4 int16 (row, col, ray, d), frame height, frame width) of frame i.
 
-        Raw frames: the preprocessor's hits. Dot images: the dot centres turned back into hits by the
-        preprocess stage's `image_to_hits`, so hit-based models can be evaluated on the seed data.
+        Raw frames: the preprocessor's hits. Dot images: each dot blob's centroid turned back into a
+        hit by the preprocess stage's `image_to_hits` (touching dots are not split into guessed
+        centres), so hit-based models can be evaluated on the seed data.
         """
         if self.kind == "raw":
             frame = self.read_image(i)
@@ -163,7 +164,7 @@ class Dataset:
         from courtloc.services.preprocess.seed_dots import image_to_hits
 
         dots = self.dot_image(i)
-        return image_to_hits(dots * np.uint8(255)), dots.shape[0], dots.shape[1]
+        return image_to_hits(dots * np.uint8(255), split_touching=False), dots.shape[0], dots.shape[1]
 
     def _preprocess(self, frame: np.ndarray) -> np.ndarray:
         """Hits (N x 4 int16: row, col, ray, d) of a raw frame through the runtime preprocessor."""

@@ -23,6 +23,7 @@ from courtloc.localizer.datasets import Dataset
 from courtloc.localizer.manifest import Manifest, read_manifest
 from courtloc.localizer.metrics import PoseMetrics, compute_metrics, position_errors
 from courtloc.localizer import paper_input
+from courtloc.services.infer.tracking import Tracker  # the robot's own tracking rule
 
 log = logging.getLogger(__name__)
 PAPER_KINDS = ("dense_image", "sparse_hits")
@@ -77,7 +78,7 @@ class PaperOnnxModel:
 class HitsPredictorModel:
     """A localizer package driven through the runtime predictor, fed radial-scan hits.
 
-    With `tracking` (what the robot does) each frame gets the previous frame's prediction as its prior
+    With `tracking` each frame starts from the infer stage's tracker (the same rule as on the robot)
     while frames come from the same recording in order; without it every frame is localised on its own.
     """
 
@@ -87,16 +88,17 @@ class HitsPredictorModel:
         self.predictor = load_predictor(path, providers=["CPUExecutionProvider"], threads=threads)
         self.manifest = self.predictor.manifest
         self.tracking = tracking
-        self._last: tuple[str, int, object] | None = None  # (recording, frame index, prediction)
+        self.tracker = Tracker()
+        self._last: tuple[str, int] | None = None  # (recording, frame index) of the previous call
 
     def predict_frame(self, dataset: Dataset, i: int) -> tuple[float, float, Optional[float]]:
         hits, height, width = dataset.hits(i)
         recording = str(dataset.recordings[i])
-        previous = None
-        if self.tracking and self._last is not None and self._last[0] == recording and self._last[1] == i - 1:
-            previous = self._last[2]
-        pose = self.predictor.predict(hits, width, height, previous)
-        self._last = (recording, i, pose)
+        if not self.tracking or self._last != (recording, i - 1):
+            self.tracker.reset()
+        pose = self.predictor.predict(hits, width, height, self.tracker.previous)
+        self.tracker.update(pose.x, pose.y, pose.yaw, pose.valid, pose.trackable)
+        self._last = (recording, i)
         return float(pose.x), float(pose.y), None if pose.yaw is None else float(pose.yaw)
 
 

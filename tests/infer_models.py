@@ -84,13 +84,15 @@ def tiny_paper_model(path: Path, name: str, xy: tuple[float, float] = (1.0, 0.5)
              helper.make_node("Mul", ["total_2d", "gain"], ["scaled"]),
              helper.make_node("Add", ["scaled", "bias"], ["xy"])]
     inits.append(numpy_helper.from_array(np.array([1, 1], np.int64), "one_by_one"))
-    graph = helper.make_graph(nodes, "tiny_paper", [helper.make_tensor_value_info("image", TensorProto.FLOAT, graph_shape)],
+    graph = helper.make_graph(nodes, "tiny_paper",
+                              [helper.make_tensor_value_info("image", TensorProto.FLOAT, graph_shape)],
                               [helper.make_tensor_value_info("xy", TensorProto.FLOAT, [1, 2])], inits)
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8)
     onnx.checker.check_model(model)
     manifest = Manifest(
         name=name, version=1,
-        input=InputSpec(kind="dense_image", tensors=[TensorSpec(name="image", dtype="float32", shape=[1, rows, WIDTH])]),
+        input=InputSpec(kind="dense_image",
+                        tensors=[TensorSpec(name="image", dtype="float32", shape=[1, rows, WIDTH])]),
         preprocessing=PreprocessSpec(frame_width=WIDTH, frame_height=HEIGHT, crop_top=CROP_TOP),
         court=COURT, camera=CAMERA, outputs=[OutputSpec(name="xy", components=["x", "y"], units=["m", "m"])])
     attach_manifest(model, manifest)

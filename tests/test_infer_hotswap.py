@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 import subprocess
 import threading
-import time
-from pathlib import Path
 from typing import Iterator
 
 import numpy as np
@@ -139,9 +137,9 @@ def test_swap_under_30fps_loses_no_frame(robot: dict, frames: TwinFrames) -> Non
     # on from the last pose instead of starting a global search. So every seq gets its pose.
     missing = sorted(set(published) - set(poses))
     first_new = min((s for s, p in poses.items() if p.model_name == "swapped"), default=None)
-    assert not missing, f"{len(missing)} of {len(published)} frames got no pose: {missing[:20]}; " \
-                        f"first pose of the new model: seq {first_new}; around the first loss: " \
-                        f"{_timings(poses, missing[0]) if missing else ''}"
+    assert not missing, (f"{len(missing)} of {len(published)} frames got no pose: {missing[:20]}; first pose of "
+                         f"the new model: seq {first_new}; around the first loss: "
+                         f"{_timings(poses, missing[0]) if missing else ''}")
     assert len(published) > FRAMES_AFTER_SWAP + 15, "the push finished before the stream was under way"
 
     versions = [(poses[s].model_name, poses[s].model_version) for s in published]

@@ -54,14 +54,15 @@ def _shape_from_pixels(n_pixels: int, width: int = 640) -> tuple[int, int]:
 
 
 def _preprocessing(crop_top: int, height: int, width: int) -> PreprocessSpec:
-    try:  # the runtime's own default white ranges, so the manifest states what the robot will do
-        from courtloc.services.preprocess.config import DEFAULT_HSV_RANGES
+    # The runtime's own defaults, so the manifest states what the robot will do (the scan origin is
+    # the last row's centre: that is where the seed images' rays start, see docs/preprocess.md).
+    from courtloc.services.preprocess.config import DEFAULT_HSV_RANGES, ScanConfig
 
-        ranges = [HsvRange(lower=r.lower, upper=r.upper) for r in DEFAULT_HSV_RANGES]
-    except ImportError:
-        ranges = []
+    ranges = [HsvRange(lower=r.lower, upper=r.upper) for r in DEFAULT_HSV_RANGES]
+    scan = ScanConfig()
     return PreprocessSpec(frame_width=width, frame_height=height + crop_top, hsv_ranges=ranges,
-                          crop_top=crop_top, scan_origin=(width / 2.0, float(height + crop_top)))
+                          crop_top=crop_top, scan_step_deg=scan.angle_step_deg,
+                          scan_origin=scan.origin_for(height + crop_top, width))
 
 
 def paper_manifest(kind: str, summary: dict, height: int, width: int, crop_top: int, name: str,

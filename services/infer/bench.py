@@ -135,7 +135,8 @@ def _worker_swap(args: argparse.Namespace) -> int:
 
         def swap() -> None:
             window["start"] = time.perf_counter()
-            reply = service._control.handle(ModelRequest(body=Activate(name="candidate", version=stored.ref.version)))
+            request = ModelRequest(body=Activate(name="candidate", version=stored.ref.version))
+            reply = service._control.handle(request)
             window["end"] = time.perf_counter()
             window["ok"] = float(reply.ok)
 

@@ -57,18 +57,25 @@ def _gray(image: np.ndarray) -> np.ndarray:
     raise ValueError(f"expected a grey (H, W) or BGR (H, W, 3) image, got shape {image.shape}")
 
 
-def dots_to_hits(image: np.ndarray, threshold: int = DEFAULT_THRESHOLD, radius: int = 2) -> np.ndarray:
+def dots_to_hits(image: np.ndarray, threshold: int = DEFAULT_THRESHOLD, radius: int = 2,
+                 split_touching: bool = True) -> np.ndarray:
     """Dot centres of a seed-style image: float32 (N, 2) (row, col), sorted by row then column.
 
     Threshold, then connected components. Dots that touch merge into one component, so inside each
     component the centres are found as the pixels where a whole dot of `radius` fits (erosion by the
     dot's own shape); a component in which no whole dot fits (a damaged or differently drawn dot)
-    contributes its centroid instead.
+    contributes its centroid instead. With `split_touching=False` every component gives its centroid
+    only: fewer points, but none guessed, which is what a geometric fit wants (a guessed centre one
+    pixel off on a far row moves its floor point by decimetres; docs/localizer.md).
     """
     binary = (_gray(image) > threshold).astype(np.uint8)
     n_labels, labels, _, centroids = cv2.connectedComponentsWithStats(binary, connectivity=8)
     if n_labels <= 1:
         return np.zeros((0, 2), np.float32)
+    if not split_touching:
+        points = centroids[1:, ::-1]
+        order = np.lexsort((points[:, 1], points[:, 0]))
+        return points[order].astype(np.float32)
     kernel = np.zeros((2 * radius + 1, 2 * radius + 1), np.uint8)
     offsets = dot_offsets(radius) + radius
     kernel[offsets[:, 0], offsets[:, 1]] = 1
@@ -131,9 +138,10 @@ def centroids_to_hits(centroids: np.ndarray, height: int, width: int, scan: Opti
 
 
 def image_to_hits(image: np.ndarray, scan: Optional[ScanConfig] = None, threshold: int = DEFAULT_THRESHOLD,
-                  radius: int = 2) -> np.ndarray:
+                  radius: int = 2, split_touching: bool = True) -> np.ndarray:
     """A seed dot image straight to int16 (N, 4) hits."""
-    return centroids_to_hits(dots_to_hits(image, threshold, radius), image.shape[0], image.shape[1], scan)
+    centres = dots_to_hits(image, threshold, radius, split_touching)
+    return centroids_to_hits(centres, image.shape[0], image.shape[1], scan)
 
 
 __all__ = ["DEFAULT_THRESHOLD", "centroids_to_hits", "dot_offsets", "dots_to_hits", "draw_hits",
