@@ -4,7 +4,9 @@ Frames are the digital twin's: rendered at random poses and run through the robo
 so the bench needs no dataset. Timed per frame, on the runtime path (onnxruntime hits -> floor points,
 then the numpy fit): tracking = started from the true pose moved by a typical between-frame motion;
 cold start = no previous pose (global search). One onnxruntime thread; pin the process to one core
-(taskset -c 0) to measure "one CPU core".
+(taskset -c 0) to measure "one CPU core". `--compare-sequential` also times, interleaved frame by frame
+in the same run, the path that fits a frame's starts one at a time (the pre-batching tracking path), so
+the ratio holds on a noisy machine.
 """
 from __future__ import annotations
 
@@ -23,6 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeats", type=int, default=20, help="tracking runs per frame")
     parser.add_argument("--cold-repeats", type=int, default=2, help="cold-start runs per frame")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--compare-sequential", action="store_true",
+                        help="also time the one-start-at-a-time fit path side by side (same frames, interleaved)")
     parser.add_argument("--json", type=Path, help="also write the result here")
 
 
@@ -58,7 +62,13 @@ def run(args: argparse.Namespace) -> int:
     frames = _frames(predictor, args.frames, args.seed)
     rng = np.random.default_rng(args.seed + 1)
     w, h = predictor.width, predictor.height
-    track_ms, cold_ms, onnx_ms, errors = [], [], [], []
+    sequential = None
+    if args.compare_sequential:
+        from courtloc.localizer.geometric import GeometricLocalizer
+
+        loc = predictor.localizer
+        sequential = GeometricLocalizer(loc.court, loc.camera, loc.config, field=loc.field, batch_starts=False)
+    track_ms, seq_ms, cold_ms, onnx_ms, errors, seq_diff = [], [], [], [], [], []
     for pose, hits in frames:
         predictor.predict(hits, w, h, previous=pose)  # warm caches
         for _ in range(args.repeats):
@@ -71,6 +81,11 @@ def run(args: argparse.Namespace) -> int:
             t0 = time.perf_counter()
             predictor.floor_points(hits)
             onnx_ms.append((time.perf_counter() - t0) * 1e3)
+            if sequential is not None:
+                t0 = time.perf_counter()
+                res = sequential.localize_points(predictor.floor_points(hits), start)
+                seq_ms.append((time.perf_counter() - t0) * 1e3)
+                seq_diff.append(math.hypot(res.pose[0] - pred.x, res.pose[1] - pred.y))
         for _ in range(args.cold_repeats):
             t0 = time.perf_counter()
             predictor.predict(hits, w, h)
@@ -81,6 +96,10 @@ def run(args: argparse.Namespace) -> int:
         "tracking": _stats(track_ms), "cold_start": _stats(cold_ms), "onnx_hits_to_floor": _stats(onnx_ms),
         "tracking_error_median_m": float(np.median(errors)),
     }
+    if sequential is not None:
+        result["tracking_sequential_starts"] = _stats(seq_ms)
+        result["tracking_speedup_median"] = float(np.median(seq_ms) / np.median(track_ms))
+        result["sequential_vs_batched_max_diff_m"] = float(np.max(seq_diff))
     text = json.dumps(result, indent=1)
     print(text)
     if args.json:

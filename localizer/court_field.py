@@ -137,6 +137,20 @@ def _element_sdfs(court) -> list[Element] | None:
 
 
 @dataclass(frozen=True)
+class GridCell:
+    """Where bilinear lookups fell: flat index of the lower-left sample and the fractions within the cell."""
+
+    index: np.ndarray
+    tx: np.ndarray
+    ty: np.ndarray
+    nx: int
+
+    def nearest(self, values: np.ndarray) -> np.ndarray:
+        """Nearest-sample value of a grid-shaped array (same shape as the field) at these points."""
+        return values.ravel()[self.index + (self.tx >= 0.5) + (self.ty >= 0.5) * self.nx]
+
+
+@dataclass(frozen=True)
 class CourtField:
     """Signed distance samples on a regular grid: value[i, j] at (x0 + j * res, y0 + i * res)."""
 
@@ -203,37 +217,51 @@ class CourtField:
                           y0=self.y0 + (factor - 1) * self.resolution / 2, resolution=r)
 
     def lookup(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Bilinear value and its exact gradient (d/dx, d/dy) at floor points; clamped at the border."""
-        v = self.values
-        ny, nx = v.shape
+        """Bilinear value and its exact gradient (d/dx, d/dy) at floor points (any shape); clamped at the border."""
         inv = 1.0 / self.resolution
-        fx = np.minimum(np.maximum((x - self.x0) * inv, 0.0), nx - 1.001)
-        fy = np.minimum(np.maximum((y - self.y0) * inv, 0.0), ny - 1.001)
+        value, gx, gy, _ = self.lookup_grid((x - self.x0) * inv, (y - self.y0) * inv)
+        return value, gx * inv, gy * inv
+
+    def lookup_grid(self, fx: np.ndarray, fy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, "GridCell"]:
+        """`lookup` at fractional grid coordinates (column, row); the gradient is per grid cell, not per metre.
+        Also returns the cell, so that a second grid can be read at the same points without recomputing it.
+
+        The pose fit works in grid units so that no call is spent converting back and forth.
+        """
+        ny, nx = self.values.shape
+        fx = np.minimum(np.maximum(fx, 0.0), nx - 1.001)
+        fy = np.minimum(np.maximum(fy, 0.0), ny - 1.001)
         ix = fx.astype(np.intp)
         iy = fy.astype(np.intp)
         tx = fx - ix
         ty = fy - iy
-        k = iy * nx + ix
-        flat = self._flat
-        k1 = k + 1
-        v00, v01, v10, v11 = flat[k], flat[k1], flat[k + nx], flat[k1 + nx]
+        # One gather for the four corners: per-call overhead, not arithmetic, sets the speed at ~100 hits.
+        corners = self._flat[(iy * nx + ix)[..., None] + self._corner_offsets]
+        v00, v01, v10, v11 = corners[..., 0], corners[..., 1], corners[..., 2], corners[..., 3]
         dx_top = v01 - v00
         dx_bot = v11 - v10
         upper = v00 + dx_top * tx
         lower = v10 + dx_bot * tx
-        value = upper + (lower - upper) * ty
-        gx = (dx_top + (dx_bot - dx_top) * ty) * inv
-        gy = (lower - upper) * inv
-        return value, gx, gy
+        gy = lower - upper
+        value = upper + gy * ty
+        gx = dx_top + (dx_bot - dx_top) * ty
+        return value, gx, gy, GridCell(index=iy * nx + ix, tx=tx, ty=ty, nx=nx)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_flat", self.values.ravel())
+        nx = self.values.shape[1]
+        object.__setattr__(self, "_corner_offsets", np.array([0, 1, nx, nx + 1], np.intp))
 
     def nearest(self, x: np.ndarray, y: np.ndarray, values: np.ndarray | None = None) -> np.ndarray:
         """Nearest-sample value of this field (or of another array on the same grid)."""
+        return self.nearest_grid((x - self.x0) / self.resolution, (y - self.y0) / self.resolution, values)
+
+    def nearest_grid(self, fx: np.ndarray, fy: np.ndarray, values: np.ndarray | None = None) -> np.ndarray:
+        """`nearest` at fractional grid coordinates (column, row)."""
         ny, nx = self.values.shape
-        ix = np.clip(np.rint((x - self.x0) / self.resolution).astype(np.int64), 0, nx - 1)
-        iy = np.clip(np.rint((y - self.y0) / self.resolution).astype(np.int64), 0, ny - 1)
+        # minimum/maximum rather than np.clip: the same result without its per-call overhead.
+        ix = np.minimum(np.maximum(np.rint(fx).astype(np.intp), 0), nx - 1)
+        iy = np.minimum(np.maximum(np.rint(fy).astype(np.intp), 0), ny - 1)
         return (self.values if values is None else values).ravel()[iy * nx + ix]
 
 

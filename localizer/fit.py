@@ -42,54 +42,83 @@ def wrap(angle: float) -> float:
     return (angle + math.pi) % (2 * math.pi) - math.pi
 
 
-def _residuals(field: CourtField, hits: ProjectedHits, params: np.ndarray, cfg: FitConfig):
-    """Per hit: residual d (m), its Jacobian rows (x, y, yaw, pitch, roll) / sigma, sigma, usable mask.
+class _FrameTerms:
+    """Per-frame constants of the residual model, computed once and shared by every start and iteration."""
 
-    2D vectors are complex numbers here: a frame of ~100 hits is small enough that numpy's per-call
-    overhead, not arithmetic, sets the speed, and complex math halves the number of calls.
+    def __init__(self, hits: ProjectedHits, cfg: FitConfig) -> None:
+        self.hits = hits
+        # Pixel noise folded into the per-hit floor errors (along the view, across it).
+        self.sig_along = hits.sigma[:, 0] * cfg.pixel_sigma
+        self.sig_across = hits.sigma[:, 1] * cfg.pixel_sigma
+        floor = cfg.floor_sigma_m + cfg.range_sigma * hits.range_m if cfg.range_sigma else cfg.floor_sigma_m
+        self.floor2 = floor * floor
+        s = np.sin(hits.depression)
+        # d(point)/d(depression) = -h / sin^2(dep) along the view (at zero tilt).
+        self.dpoint_ddep = -hits.camera_height / (s * s)
+
+
+def _residuals(field: CourtField, terms: _FrameTerms, params: np.ndarray, cfg: FitConfig, tilt: bool):
+    """For S poses at once (params (S, 5)): residual d (S, N) metres, a (S, 6, N) array holding the
+    Jacobian rows (x, y, yaw, pitch, roll) / sigma and, as row 5, the normalised residual z = d / sigma
+    (one matmul then gives both the normal matrix and the gradient), and the usable mask (S, N).
+
+    Every start of a frame is evaluated in the same numpy calls: with ~100 hits numpy's per-call
+    overhead, not arithmetic, sets the speed, so three starts cost little more than one. 2D vectors are
+    complex numbers for the same reason (one call per rotation).
     """
-    x, y, yaw, pitch, roll = params
-    rot = complex(math.cos(yaw), math.sin(yaw))
-    if pitch or roll:
-        dep = np.maximum(hits.depression + pitch + roll * hits.tan_azimuth, 1e-3)
-        rng = hits.camera_height / np.tan(dep)
-        local = hits.camera_xy + hits.cview * rng
+    hits = terms.hits
+    rot = np.exp(1j * params[:, 2])[:, None]
+    if tilt and params[:, 3:].any():
+        dep = np.maximum(hits.depression + params[:, 3:4] + params[:, 4:5] * hits.tan_azimuth, 1e-3)
+        local = hits.camera_xy + hits.cview * (hits.camera_height / np.tan(dep))
+        s = np.sin(dep)
+        dpoint_ddep = -hits.camera_height / (s * s)
     else:
-        dep = hits.depression
         local = hits.cpoints
-    r = local * rot
-    d, gx, gy = field.lookup(r.real + x, r.imag + y)
-    n = gx + 1j * gy
-    n /= np.abs(n) + 1e-9
+        dpoint_ddep = terms.dpoint_ddep
+    # Court positions in field-grid units (columns, rows): saves converting metres on every lookup.
+    inv_res = 1.0 / field.resolution
+    rg = local * (rot * inv_res)
+    fx = rg.real + (params[:, 0:1] - field.x0) * inv_res
+    fy = rg.imag + (params[:, 1:2] - field.y0) * inv_res
+    d, gx, gy, cell = field.lookup_grid(fx, fy)  # gradient per grid cell
+    norm = np.hypot(gx, gy)
+    norm += 1e-12
+    nx = gx / norm
+    ny = gy / norm
     view_w = hits.cview * rot
+    vx, vy = view_w.real, view_w.imag
     # Edge normal against the hit's view direction splits the pixel error into along/across parts.
-    q = n * np.conj(view_w)
-    sig2 = (q.real * hits.sigma[:, 0]) ** 2 + (q.imag * hits.sigma[:, 1]) ** 2
-    floor = cfg.floor_sigma_m + cfg.range_sigma * hits.range_m if cfg.range_sigma else cfg.floor_sigma_m
-    sig = np.sqrt(sig2 * cfg.pixel_sigma**2 + floor * floor)
-    ray_cos = (n * np.conj(hits.cray * rot)).real
+    q_along = nx * vx + ny * vy
+    q_across = ny * vx - nx * vy
+    sig2 = (q_along * terms.sig_along) ** 2 + (q_across * terms.sig_across) ** 2
+    sig2 += terms.floor2
+    inv = 1.0 / np.sqrt(sig2)
+    ray_w = hits.cray * rot
+    ray_cos = nx * ray_w.real + ny * ray_w.imag
     inside = d < 0
     # Inside paint but nearer the edge the ray entered by: the hit belongs to the band's far edge,
     # (2 * half-width - depth) further along, so measure to that edge (gradient flips with it).
     flip = inside & (ray_cos < 0)
     if field.half_width is not None and flip.any():
-        hw = field.nearest(r.real[flip] + x, r.imag[flip] + y, field.half_width)
-        d[flip] = -d[flip] - 2.0 * hw
-        sign = np.where(flip, -1.0, 1.0)
+        # Whole arrays, not the flipped subset: boolean indexing costs more calls than it saves.
+        d = np.where(flip, -d - 2.0 * cell.nearest(field.half_width), d)
+        sign = 1.0 - 2.0 * flip
         gx = gx * sign
         gy = gy * sign
     usable = (inside | (ray_cos >= cfg.gate_cos)) & (np.abs(d) < cfg.max_residual_m)
-    inv = 1.0 / sig
-    j = np.empty((5, len(d)))
-    np.multiply(gx, inv, out=j[0])
-    np.multiply(gy, inv, out=j[1])
-    np.multiply(gy * r.real - gx * r.imag, inv, out=j[2])
-    # d(point)/d(depression) = -h / sin^2(dep) along the view; roll scales that by tan(azimuth).
-    s = np.sin(dep)
-    along = (gx * view_w.real + gy * view_w.imag) * (-hits.camera_height / (s * s)) * inv
-    j[3] = along
-    np.multiply(along, hits.tan_azimuth, out=j[4])
-    return d, j, sig, usable
+    inv_m = inv * inv_res  # 1/sigma and per-cell -> per-metre gradient in one factor
+    j = np.empty((params.shape[0], 6, d.shape[1]))
+    np.multiply(gx, inv_m, out=j[:, 0])
+    np.multiply(gy, inv_m, out=j[:, 1])
+    # Grid-unit gradient times grid-unit lever arm = metric gradient times metric lever arm.
+    np.multiply(gy * rg.real - gx * rg.imag, inv, out=j[:, 2])
+    along = (gx * vx + gy * vy) * dpoint_ddep * inv_m
+    j[:, 3] = along
+    # Roll changes the depression by tan(azimuth) times itself.
+    np.multiply(along, hits.tan_azimuth, out=j[:, 4])
+    np.multiply(d, inv, out=j[:, 5])
+    return d, j, usable
 
 
 def _tukey_weight(z: np.ndarray, c: float) -> np.ndarray:
@@ -105,56 +134,91 @@ def _tukey_loss(z: np.ndarray, c: float) -> np.ndarray:
 def fit_pose(field: CourtField, hits: ProjectedHits, start: np.ndarray, cfg: FitConfig,
              quality: QualityConfig, iterations: int | None = None) -> FitResult:
     """Refine `start` (x, y, yaw) by IRLS; the result carries its quality assessment."""
-    params = np.zeros(5)
-    params[:3] = np.asarray(start, np.float64)[:3]
+    return fit_poses(field, hits, np.asarray(start, np.float64)[None, :3], cfg, quality, iterations)[0]
+
+
+def fit_poses(field: CourtField, hits: ProjectedHits, starts: np.ndarray, cfg: FitConfig,
+              quality: QualityConfig, iterations: int | None = None) -> list[FitResult]:
+    """Refine each of `starts` (S, 3) independently by IRLS, all in the same numpy calls.
+
+    Each start stops on its own once its step is below tolerance (its pose is then frozen), so every
+    result equals what a fit from that start alone would give.
+    """
+    starts = np.atleast_2d(np.asarray(starts, np.float64))
+    n_starts = starts.shape[0]
+    params = np.zeros((n_starts, 5))
+    params[:, :3] = starts[:, :3]
     n = len(hits.points)
     if n < 3:
-        return _result(params, np.inf, n, 0, 0.0, np.inf, np.inf, np.inf, quality)
-    k = 5 if cfg.tilt_sigma_deg > 0 else 3
+        return [_result(p, np.inf, n, 0, 0.0, np.inf, np.inf, np.inf, quality) for p in params]
+    tilt = cfg.tilt_sigma_deg > 0
+    k = 5 if tilt else 3
     prior = np.zeros(5)
-    if k == 5:
+    if tilt:
         prior[3:] = 1.0 / math.radians(cfg.tilt_sigma_deg) ** 2
+    prior_k = prior[:k]
+    eye = np.eye(k)
+    prior_diag = np.diag(prior_k)
+    terms = _FrameTerms(hits, cfg)
     max_it = iterations or cfg.max_iterations
-    converged = False
+    rows = np.r_[0:k, 5]  # the estimated parameters' Jacobian rows and z
+    done = np.zeros(n_starts, bool)
     for it in range(max_it + 1):
-        d, j, sig, usable = _residuals(field, hits, params, cfg)
-        z = d / sig
-        if converged or it == max_it:
-            break  # these residuals, at the final pose, feed the quality assessment below
+        d, j, usable = _residuals(field, terms, params, cfg, tilt)
+        z = j[:, 5]
+        if done.all() or it == max_it:
+            break  # these residuals, at the final poses, feed the quality assessment below
         if it < cfg.huber_iterations:
             w = np.minimum(1.0, cfg.huber_c / np.maximum(np.abs(z), 1e-9))
         else:
             w = _tukey_weight(z, cfg.tukey_c)
         w *= usable
-        jk = j[:k]
-        jw = jk * w
-        h = jw @ jk.T + np.diag(prior[:k])
-        g = jw @ z + prior[:k] * params[:k]
-        if h[0, 0] + h[1, 1] <= 0.0:
-            break
+        jz = j if k == 5 else j[:, rows]
+        m = (jz * w[:, None, :]) @ jz.transpose(0, 2, 1)
+        h = m[:, :k, :k] + prior_diag
+        g = m[:, :k, k] + prior_k * params[:, :k]
+        done |= h[:, 0, 0] + h[:, 1, 1] <= 0.0
         # Tiny damping keeps a degenerate (parallel lines only) system solvable; quality reports it.
-        step = -np.linalg.solve(h + np.eye(k) * (1e-6 * np.trace(h[:3, :3]) + 1e-12), g)
-        params[:k] += step
-        params[2] = wrap(params[2])
-        converged = math.hypot(step[0], step[1]) < cfg.step_tol_m and abs(step[2]) < cfg.step_tol_m / 5.0
+        damp = 1e-6 * (h[:, 0, 0] + h[:, 1, 1] + h[:, 2, 2]) + 1e-12
+        step = -np.linalg.solve(h + damp[:, None, None] * eye, g[:, :, None])[:, :, 0]
+        step[done] = 0.0
+        params[:, :k] += step
+        params[:, 2] = (params[:, 2] + math.pi) % (2 * math.pi) - math.pi
+        done |= (np.hypot(step[:, 0], step[:, 1]) < cfg.step_tol_m) & (np.abs(step[:, 2]) < cfg.step_tol_m / 5.0)
     inl = usable & (np.abs(z) < quality.inlier_sigmas)
-    n_in = int(np.count_nonzero(inl))
+    n_in = np.count_nonzero(inl, axis=1)
     loss = np.where(usable, _tukey_loss(z, cfg.tukey_c), cfg.tukey_c**2 / 6.0)
-    cost = float(loss.mean())
-    rms = float(np.sqrt(np.mean(d[inl] ** 2))) if n_in else np.inf
+    cost = loss.mean(axis=1)
+    rms = np.sqrt(np.sum(d * d * inl, axis=1) / np.maximum(n_in, 1))
     # Covariance of the normal matrix with the inliers at unit weight (units: pixel_sigma noise);
     # with tilt estimated, its uncertainty is included (marginalised) in the pose block.
-    ji = j[:k, inl]
-    hh = ji @ ji.T + np.diag(prior[:k])
+    jk = j[:, :k]
+    hh = (jk * inl[:, None, :]) @ jk.transpose(0, 2, 1) + (prior_diag + eye * 1e-12)
+    stds = _pose_stds(hh)
+    return [_result(params[s], float(cost[s]), n, int(n_in[s]), int(n_in[s]) / max(n, 1),
+                    float(rms[s]) if n_in[s] else np.inf, stds[s][0], stds[s][1], quality) for s in range(n_starts)]
+
+
+def _pose_stds(hh: np.ndarray) -> list[tuple[float, float]]:
+    """(worst-direction position std, yaw std) per (k, k) normal matrix of the (S, k, k) stack."""
     try:
-        cov = np.linalg.inv(hh + np.eye(k) * 1e-12)
-        a, b, c = cov[0, 0], cov[0, 1], cov[1, 1]
+        covs = np.linalg.inv(hh)
+    except np.linalg.LinAlgError:  # one singular matrix fails the whole stack: invert one by one
+        covs = []
+        for m in hh:
+            try:
+                covs.append(np.linalg.inv(m))
+            except np.linalg.LinAlgError:
+                covs.append(None)
+    out = []
+    for cov in covs:
+        if cov is None:
+            out.append((np.inf, np.inf))
+            continue
+        a, b, c = float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
         worst = 0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))  # larger 2x2 eigenvalue
-        pos_std = math.sqrt(max(worst, 0.0))
-        yaw_std = math.sqrt(max(cov[2, 2], 0.0))
-    except np.linalg.LinAlgError:
-        pos_std = yaw_std = np.inf
-    return _result(params, cost, n, n_in, n_in / max(n, 1), rms, pos_std, yaw_std, quality)
+        out.append((math.sqrt(max(worst, 0.0)), math.sqrt(max(float(cov[2, 2]), 0.0))))
+    return out
 
 
 def _result(params: np.ndarray, cost: float, n: int, n_in: int, ratio: float, rms: float, pos_std: float,

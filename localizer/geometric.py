@@ -15,7 +15,7 @@ import numpy as np
 
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.court_field import CourtField
-from courtloc.localizer.fit import FitResult, fit_pose
+from courtloc.localizer.fit import FitResult, fit_pose, fit_poses
 from courtloc.localizer.projection import HitGeometry, ProjectedHits
 from courtloc.localizer.search import CoarseSearch
 from courtloc.localizer.symmetry import by_half, by_previous, mirror
@@ -52,8 +52,11 @@ class LocalizeResult:
 
 class GeometricLocalizer:
     def __init__(self, court: Court, camera: CameraModel, config: LocalizerConfig | None = None,
-                 field: CourtField | None = None) -> None:
+                 field: CourtField | None = None, batch_starts: bool = True) -> None:
+        """`batch_starts=False` fits a frame's starts one at a time (the same results, ~2-3x slower): kept so
+        `courtloc bench localize --compare-sequential` can time both paths side by side."""
         self.config = config or LocalizerConfig()
+        self.batch_starts = batch_starts
         self.court = court
         self.camera = camera
         # `field` lets variants of one court (e.g. while tuning) share the ~1 s build.
@@ -72,8 +75,8 @@ class GeometricLocalizer:
             prev = np.asarray(previous, np.float64)
             return self._finish(self._track(hits, prev), "track", prev)
         best: FitResult | None = None
-        for start in self.search.candidates(hits):
-            res = fit_pose(self.field, hits, start, cfg.fit, cfg.quality)
+        candidates = self.search.candidates(hits)
+        for res in self._fit_starts(hits, np.array(candidates)) if candidates else []:
             if best is None or (res.valid, -res.cost) > (best.valid, -best.cost):
                 best = res
         if best is None:  # no hits at all
@@ -88,18 +91,20 @@ class GeometricLocalizer:
         and drops it when stale (then the next call searches globally).
         """
         cfg = self.config
-        first = fit_pose(self.field, hits, prev, cfg.fit, cfg.quality)
-        # The basin of the right alignment can be narrower than a frame's turn: always also try
-        # starts turned by +-track_yaw_starts_rad and keep the lowest robust cost.
-        for dyaw in (cfg.track_yaw_starts_rad, -cfg.track_yaw_starts_rad) if cfg.track_yaw_starts_rad > 0 else ():
-            other = fit_pose(self.field, hits, prev + (0.0, 0.0, dyaw), cfg.fit, cfg.quality)
+        # The basin of the right alignment can be narrower than a frame's turn: also start turned by
+        # +-track_yaw_starts_rad and keep the lowest robust cost (all starts run in one batched fit).
+        dyaw = cfg.track_yaw_starts_rad
+        starts = [prev] + ([prev + (0.0, 0.0, dyaw), prev + (0.0, 0.0, -dyaw)] if dyaw > 0 else [])
+        fits = self._fit_starts(hits, np.array(starts))
+        first = fits[0]
+        for other in fits[1:]:
             if (other.valid, -other.cost) > (first.valid, -first.cost):
                 first = other
         if first.valid and math.hypot(*(first.pose[:2] - prev[:2])) <= cfg.track_max_jump_m:
             return first
         best = first
-        for dx, dy, dyaw in _TRACK_RESTARTS:
-            res = fit_pose(self.field, hits, prev + (dx, dy, dyaw), cfg.fit, cfg.quality)
+        restarts = self._fit_starts(hits, prev + np.array(_TRACK_RESTARTS))
+        for res in restarts:
             ok = res.valid and math.hypot(*(res.pose[:2] - prev[:2])) <= cfg.track_max_jump_m
             best_ok = best.valid and math.hypot(*(best.pose[:2] - prev[:2])) <= cfg.track_max_jump_m
             if (ok, -res.cost) > (best_ok, -best.cost):
@@ -107,6 +112,12 @@ class GeometricLocalizer:
         if best.valid and math.hypot(*(best.pose[:2] - prev[:2])) > cfg.track_max_jump_m:
             best = FitResult(**{**best.__dict__, "valid": False, "quality": min(best.quality, 0.49)})
         return best
+
+    def _fit_starts(self, hits: ProjectedHits, starts: np.ndarray) -> list[FitResult]:
+        cfg = self.config
+        if self.batch_starts:
+            return fit_poses(self.field, hits, starts, cfg.fit, cfg.quality)
+        return [fit_pose(self.field, hits, s, cfg.fit, cfg.quality) for s in starts]
 
     def _finish(self, fit: FitResult, mode: str, previous: np.ndarray | None) -> LocalizeResult:
         cfg = self.config

@@ -84,7 +84,8 @@ class HitGeometry:
         ray /= np.maximum(np.hypot(ray[:, 0], ray[:, 1]), 1e-9)[:, None]
         sigma = np.stack([rng**2 * self._k_along, rng * self._k_across], axis=1)
         h = self.camera.mount.height
-        return ProjectedHits(points=pts, ray_dirs=ray, sigma=sigma, view_dirs=view, range_m=rng,
+        # Built on the per-frame path from arrays made right here: skip pydantic's validation pass.
+        return ProjectedHits.model_construct(points=pts, ray_dirs=ray, sigma=sigma, view_dirs=view, range_m=rng,
                              cpoints=pts[:, 0] + 1j * pts[:, 1], cray=ray[:, 0] + 1j * ray[:, 1],
                              cview=view[:, 0] + 1j * view[:, 1],
                              depression=np.arctan2(h, rng),

@@ -153,9 +153,7 @@ def _worker_swap(args: argparse.Namespace) -> int:
             tick += period
             time.sleep(max(0.0, tick - time.perf_counter()))  # the camera's cadence
             message = edges[i % len(edges)]
-            pose = service.make_pose(service.active, message, frames[i % len(frames)], previous=service.previous)
-            if pose.header.valid and pose.yaw is not None:
-                service.previous = (pose.x, pose.y, pose.yaw)
+            service.make_pose(service.active, message, frames[i % len(frames)], True, service.tracker)
             rows.append((tick, time.perf_counter() - tick))
             i += 1
         swapper.join()
