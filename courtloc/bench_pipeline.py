@@ -33,7 +33,8 @@ def run(args: argparse.Namespace) -> int:
         "e2e_latency_ms_p50": e2e["p50"],
         "e2e_latency_ms_p99": e2e["p99"],
         "e2e_latency_ms_max": e2e["max"],
-        "throughput_hz": summary["messages"].get(e2e["topic"], 0) / summary["duration_s"],
+        # The last stage's own output rate (its latest health): start-up time is not in it.
+        "throughput_hz": summary["stages"].get(e2e["topic"].split("/")[0], {}).get("rate_out_hz", 0.0),
         "valid_fraction": (summary["valid_messages"].get(e2e["topic"], 0)
                            / max(summary["messages"].get(e2e["topic"], 0), 1)),
         "stages": {name: {k: s[k] for k in ("rate_out_hz", "latency_ms_p50", "latency_ms_p99", "dropped")}

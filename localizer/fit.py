@@ -199,6 +199,7 @@ def fit_poses(field: CourtField, hits: ProjectedHits, starts: np.ndarray, cfg: F
                     float(rms[s]) if n_in[s] else np.inf, stds[s][0], stds[s][1], quality) for s in range(n_starts)]
 
 
+
 def _pose_stds(hh: np.ndarray) -> list[tuple[float, float]]:
     """(worst-direction position std, yaw std) per (k, k) normal matrix of the (S, k, k) stack."""
     try:

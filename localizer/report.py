@@ -37,6 +37,7 @@ def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | 
         "",
         "```",
         report.get("command", "courtloc localizer crosseval --data <seed-gazebo> --json crosseval.json"),
+        *([report["build_command"]] if report.get("build_command") else []),
         "```",
         "",
         "Tuned on one recording (edge offset, hit noise: grid, fits from the previous frame's label), "
