@@ -235,9 +235,10 @@ class CourtField:
         iy = fy.astype(np.intp)
         tx = fx - ix
         ty = fy - iy
-        # One gather for the four corners: per-call overhead, not arithmetic, sets the speed at ~100 hits.
-        corners = self._flat[(iy * nx + ix)[..., None] + self._corner_offsets]
-        v00, v01, v10, v11 = corners[..., 0], corners[..., 1], corners[..., 2], corners[..., 3]
+        cell = iy * nx + ix
+        # One gather for the four corners (per-call overhead, not arithmetic, sets the speed at ~100 hits),
+        # corner on the first axis so that each corner's array is contiguous for the arithmetic below.
+        v00, v01, v10, v11 = self._flat[cell + self._corner_offsets.reshape((4,) + (1,) * cell.ndim)]
         dx_top = v01 - v00
         dx_bot = v11 - v10
         upper = v00 + dx_top * tx
@@ -245,7 +246,7 @@ class CourtField:
         gy = lower - upper
         value = upper + gy * ty
         gx = dx_top + (dx_bot - dx_top) * ty
-        return value, gx, gy, GridCell(index=iy * nx + ix, tx=tx, ty=ty, nx=nx)
+        return value, gx, gy, GridCell(index=cell, tx=tx, ty=ty, nx=nx)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_flat", self.values.ravel())

@@ -38,10 +38,6 @@ class FitResult:
     tilt: tuple[float, float] = (0.0, 0.0)  # estimated (pitch, roll) of the body, rad
 
 
-def wrap(angle: float) -> float:
-    return (angle + math.pi) % (2 * math.pi) - math.pi
-
-
 class _FrameTerms:
     """Per-frame constants of the residual model, computed once and shared by every start and iteration."""
 

@@ -191,6 +191,18 @@ class BusClient:
     def put_raw(self, path: str, payload: bytes) -> None:
         self.session.put(TOPICS[path].key(self.robot_id), payload)
 
+    def wait_subscribed(self, path: str, timeout: float = 20.0) -> None:
+        """Until some subscriber of `path` is known to the router: a put before that reaches nobody."""
+        matched = threading.Event()
+        publisher = self.session.declare_publisher(TOPICS[path].key(self.robot_id))
+        listener = publisher.declare_matching_listener(lambda status: matched.set() if status.matching else None)
+        try:
+            if not (publisher.matching_status.matching or matched.wait(timeout)):
+                raise AssertionError(f"no subscriber of {path} appeared within {timeout} s")
+        finally:
+            listener.undeclare()
+            publisher.undeclare()
+
     def close(self) -> None:
         for sub in self._subs:
             sub.undeclare()

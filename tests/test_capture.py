@@ -110,6 +110,8 @@ def test_capture_with_an_external_pose_topic_and_lag(tmp_path: Path) -> None:
     robot, tracker = BusClient(port, ROBOT), BusClient(port, "tracker1")
     try:
         capture.wait_line("capturing")
+        robot.wait_subscribed("camera/frame")
+        tracker.wait_subscribed("infer/pose")
         base = 1_700_000_000_000 * MS
         for i in range(6):
             ok, jpeg = cv2.imencode(".jpg", np.full((24, 32, 3), 30 * i, np.uint8))

@@ -25,7 +25,9 @@ class InferConfig(BaseModel):
         default_factory=lambda: ["tensorrt", "cuda", "cpu"],
         description="onnxruntime execution providers in order of preference; those not installed are skipped")
     threads: int = Field(default=1, ge=1, le=64, description="onnxruntime intra-op threads")
-    golden_latency_budget_ms: float = Field(default=100.0, gt=0,
+    # 200 ms admits the paper's dense graph (~70 ms per frame on a 2-core x86 here) so it stays servable
+    # for comparison; its exact sparse graph (~4 ms) is the one to serve. Tighten it on the robot.
+    golden_latency_budget_ms: float = Field(default=200.0, gt=0,
                                             description="a candidate slower than this on golden inputs is refused")
     on_court_margin_m: float = Field(default=0.5, ge=0, description="a pose further off the court is not valid")
     require_signature: bool = Field(default=False, description="refuse pushed models without a valid signature")
