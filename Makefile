@@ -4,7 +4,7 @@
 VENV ?= .venv
 PYTHON ?= python3
 BIN := $(VENV)/bin
-DEMO_SECONDS ?= 20
+DEMO_SECONDS ?= 30
 
 .PHONY: demo test bench clean
 
