@@ -21,8 +21,22 @@ Priority = Literal["real_time", "interactive_high", "data_high", "data", "data_l
 Congestion = Literal["drop", "block"]
 
 
+class _Keyed:
+    """A service's named endpoint: `path` is `<service>/<name>`, `key` adds the root and the robot."""
+
+    service: str
+    name: str
+
+    @property
+    def path(self) -> str:
+        return f"{self.service}/{self.name}"
+
+    def key(self, robot_id: str) -> str:
+        return key_of(robot_id, self.path)
+
+
 @dataclass(frozen=True)
-class Topic:
+class Topic(_Keyed):
     service: str
     name: str
     message: type[BaseModel]
@@ -32,13 +46,6 @@ class Topic:
     express: bool
     freshness_ms: float
     doc: str
-
-    @property
-    def path(self) -> str:
-        return f"{self.service}/{self.name}"
-
-    def key(self, robot_id: str) -> str:
-        return key_of(robot_id, self.path)
 
 
 @dataclass(frozen=True)
@@ -99,7 +106,7 @@ TOPICS: dict[str, Topic] = {t.path: t for t in (*_TOPICS, *HEALTH_TOPICS.values(
 
 
 @dataclass(frozen=True)
-class Control:
+class Control(_Keyed):
     """A queryable: `service` answers requests of `request` type with `reply`; only `callers` may ask."""
 
     service: str
@@ -109,13 +116,6 @@ class Control:
     callers: tuple[str, ...]
     timeout_s: float
     doc: str
-
-    @property
-    def path(self) -> str:
-        return f"{self.service}/{self.name}"
-
-    def key(self, robot_id: str) -> str:
-        return key_of(robot_id, self.path)
 
 
 PIT = "pit"

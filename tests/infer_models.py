@@ -122,3 +122,12 @@ class Pacer:
         """Wait for the next tick; False once `stop` is set."""
         self.next += self.period
         return not stop.wait(max(0.0, self.next - time.monotonic()))
+
+
+def request_pose(client, frames: TwinFrames, seq: int, frame_index: int = 0):  # noqa: ANN001, ANN201
+    """Publish twin frame `frame_index` as edges `seq` to a running infer stage and return its pose."""
+    from courtloc.common import codec
+
+    client.wait_subscribed("preprocess/edges")  # a put before the stage's route exists reaches nobody
+    client.put_raw("preprocess/edges", codec.encode(frames.edges(frame_index, seq)))
+    return client.wait_for("infer/pose", lambda p: p.header.seq == seq, timeout=10.0)

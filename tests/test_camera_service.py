@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from buskit import BusClient, free_port, start_router, start_stage, write_config
+from buskit import BusClient, folder_camera_toml, free_port, start_router, start_stage, write_config
 
 pytestmark = pytest.mark.integration
 
@@ -71,15 +71,8 @@ def test_missing_folder_is_retried_not_fatal(tmp_path: Path) -> None:
     """A camera that is not there is reopened with back-off; plugging it in makes frames flow."""
     port = free_port()
     folder = tmp_path / "later"
-    config = write_config(tmp_path / "cam.toml", port, f"""
-[camera]
-source = "folder"
-reopen_backoff_s = 0.1
-reopen_backoff_max_s = 0.2
-[camera.folder]
-path = "{folder}"
-pattern = "*.png"
-""")
+    config = write_config(tmp_path / "cam.toml", port,
+                          folder_camera_toml(folder, fps=30, extra="reopen_backoff_s = 0.1\nreopen_backoff_max_s = 0.2"))
     router = start_router(port)
     client = BusClient(port)
     client.subscribe("camera/frame")

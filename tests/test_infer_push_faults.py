@@ -14,11 +14,10 @@ from typing import Any, Iterator
 import pytest
 
 from buskit import PYTHON, BusClient, free_port, start_router, start_stage, write_config
-from courtloc.common import codec
 from courtloc.common.messages import Pose
 from courtloc.model_client import ModelClient
 from courtloc.services.infer.store import INCOMING, ModelStore
-from infer_models import TwinFrames, relabelled_package, tiny_paper_model
+from infer_models import TwinFrames, relabelled_package, request_pose, tiny_paper_model
 
 pytestmark = pytest.mark.integration
 
@@ -46,15 +45,8 @@ class Bench:
         return infer
 
     def pose(self) -> Pose:
-        for _ in range(10):
-            self.seq += 1
-            seq = self.seq
-            self.client.put_raw("preprocess/edges", codec.encode(self.frames.edges(0, seq)))
-            try:
-                return self.client.wait_for("infer/pose", lambda p: p.header.seq == seq, timeout=5.0)
-            except AssertionError:  # the first frame can precede the subscription's route
-                continue
-        raise AssertionError("no pose from the infer stage")
+        self.seq += 1
+        return request_pose(self.client, self.frames, self.seq)
 
     def model(self, config: Path, *args: str) -> tuple[int, dict[str, Any], str]:
         done = subprocess.run(["nice", "-n", "10", *PYTHON, "-v", "model", *args, "--config", str(config), "--json"],

@@ -12,11 +12,10 @@ from typing import Any, Iterator
 import pytest
 
 from buskit import PYTHON, BusClient, free_port, start_router, start_stage, write_config
-from courtloc.common import codec
 from courtloc.common.messages import Pose
 from courtloc.security.signing import generate_signing_key, sign_model, write_signing_keys
 from courtloc.services.infer.store import INCOMING, ModelStore
-from infer_models import TwinFrames, bundled_default, tiny_paper_model, truncated_copy
+from infer_models import TwinFrames, bundled_default, request_pose, tiny_paper_model, truncated_copy
 
 pytestmark = pytest.mark.integration
 
@@ -52,16 +51,8 @@ signing_public_key = "{tmp / 'sign.pub'}"
         return self.infer
 
     def pose(self) -> Pose:
-        """Publish one frame and return its pose (the first frame may precede the route: try again)."""
-        for _ in range(10):
-            self.seq += 1
-            seq = self.seq
-            self.client.put_raw("preprocess/edges", codec.encode(self.frames.edges(0, seq)))
-            try:
-                return self.client.wait_for("infer/pose", lambda p: p.header.seq == seq, timeout=5.0)
-            except AssertionError:
-                continue
-        raise AssertionError("no pose from the infer stage")
+        self.seq += 1
+        return request_pose(self.client, self.frames, self.seq)
 
     def model(self, *args: str) -> tuple[int, dict[str, Any]]:
         """`courtloc model ARGS --json` as its own (niced: the pit is another machine) process."""

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from buskit import BusClient, free_port, start_router, start_stage, write_config
+from buskit import BusClient, folder_camera_toml, free_port, start_router, start_stage, write_config
 
 pytestmark = pytest.mark.integration
 
@@ -24,16 +24,8 @@ def test_camera_unplugged_and_back(tmp_path: Path) -> None:
     port = free_port()
     folder = tmp_path / "camera"
     _fill(folder, 10)
-    config = write_config(tmp_path / "cam.toml", port, f"""
-[camera]
-source = "folder"
-fps = 20
-reopen_backoff_s = 0.1
-reopen_backoff_max_s = 0.2
-[camera.folder]
-path = "{folder}"
-pattern = "*.png"
-""")
+    config = write_config(tmp_path / "cam.toml", port,
+                          folder_camera_toml(folder, extra="reopen_backoff_s = 0.1\nreopen_backoff_max_s = 0.2"))
     router = start_router(port)
     client = BusClient(port)
     client.subscribe("camera/frame")
