@@ -15,6 +15,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO, TextIO
 
 from courtloc.deployment import DeploymentConfig
 
@@ -48,7 +49,7 @@ class Child:
                                         stdin=subprocess.DEVNULL)
         threading.Thread(target=self._pump, args=(handle,), daemon=True).start()
 
-    def _pump(self, handle) -> None:  # noqa: ANN001
+    def _pump(self, handle: BinaryIO) -> None:
         """Copy the child's output to its log, and notice the line that says it is ready."""
         assert self.process is not None and self.process.stdout is not None
         with handle:
@@ -131,7 +132,7 @@ def write_effective_config(config: DeploymentConfig, folder: Path) -> Path:
 
 
 def run_up(config: DeploymentConfig, duration_s: float | None, summary_path: Path | None,
-           stop: threading.Event, status_stream=sys.stderr) -> dict:  # noqa: ANN001
+           stop: threading.Event, status_stream: TextIO = sys.stderr) -> dict:
     from courtloc.watch import BusWatcher
 
     with tempfile.TemporaryDirectory(prefix="courtloc-up-") as tmp:

@@ -9,7 +9,8 @@ import zenoh
 
 from courtloc.common import codec
 from courtloc.common.control import (
-    Activate, FileSpec, ListModels, ModelReply, ModelRequest, PushBegin, PushChunk, PushCommit, Rollback, Shadow,
+    Activate, FileSpec, ListModels, ModelReply, ModelRequest, ModelRequestBody, PushBegin, PushChunk, PushCommit,
+    Rollback, Shadow,
 )
 from courtloc.common.services_table import CONTROLS
 from courtloc.security.signing import signature_path
@@ -45,7 +46,7 @@ class ModelClient:
         self.control = CONTROLS["infer/model"]
         self.key = self.control.key(robot_id)
 
-    def request(self, body, timeout_s: float | None = None) -> ModelReply:  # noqa: ANN001
+    def request(self, body: ModelRequestBody, timeout_s: float | None = None) -> ModelReply:
         payload = codec.encode(ModelRequest(body=body))
         replies = self.session.get(self.key, payload=payload, timeout=timeout_s or self.control.timeout_s)
         for reply in replies:

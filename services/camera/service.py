@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 
 from courtloc.common.messages import Frame, GroundTruth, Header
+from courtloc.common.bus import ZenohConfig
 from courtloc.common.runtime import Service
 from courtloc.services.camera.config import CameraConfig
 from courtloc.services.camera.sources import Capture, FrameSource, SourceError, make_source
@@ -27,7 +28,7 @@ def encode_frame(frame: np.ndarray, header: Header, encoding: str, jpeg_quality:
 class CameraService(Service):
     name = "camera"
 
-    def __init__(self, robot_id: str, zenoh_config, config: CameraConfig) -> None:  # noqa: ANN001
+    def __init__(self, robot_id: str, zenoh_config: ZenohConfig, config: CameraConfig) -> None:
         super().__init__(robot_id, zenoh_config)
         self.config = config
         self.source: FrameSource = make_source(config)

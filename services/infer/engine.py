@@ -11,10 +11,15 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from courtloc.services.infer.config import InferConfig
+
+if TYPE_CHECKING:
+    from courtloc.localizer.manifest import Manifest
+    from courtloc.sim.court import Court
 from courtloc.services.infer.golden import GoldenSets
 from courtloc.services.infer.store import ModelRef, StoredModel
 
@@ -36,7 +41,7 @@ class LoadedModel:
     input_kind: str
 
     @property
-    def manifest(self):  # noqa: ANN201
+    def manifest(self) -> "Manifest":
         return self.predictor.manifest
 
 
@@ -48,7 +53,7 @@ def available_providers(preferred: list[str]) -> list[str]:
     return chosen or ["CPUExecutionProvider"]
 
 
-def is_on_court(court, x: float, y: float, margin: float) -> bool:  # noqa: ANN001
+def is_on_court(court: "Court", x: float, y: float, margin: float) -> bool:
     return bool(court.contains(x, y, margin=margin))
 
 
@@ -95,7 +100,7 @@ def load_model(stored: StoredModel, config: InferConfig, golden: GoldenSets | No
     return loaded
 
 
-def check_graph_signature(path: Path, manifest) -> None:  # noqa: ANN001
+def check_graph_signature(path: Path, manifest: "Manifest") -> None:
     """The graph's inputs are exactly the manifest's tensors: names, element types and fixed dimensions."""
     import onnx
     from onnx.helper import tensor_dtype_to_np_dtype

@@ -15,6 +15,7 @@ from courtloc.common import codec
 from courtloc.common.control import ModelReply, ModelRequest
 from courtloc.common.inbox import Delivery
 from courtloc.common.messages import Edges, Pose
+from courtloc.common.bus import ZenohConfig
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import CONTROLS, Topic
 from courtloc.services.infer.config import InferConfig
@@ -44,7 +45,7 @@ def hits_of(edges: Edges) -> np.ndarray:
 class InferService(Service):
     name = "infer"
 
-    def __init__(self, robot_id: str, zenoh_config, config: InferConfig) -> None:  # noqa: ANN001
+    def __init__(self, robot_id: str, zenoh_config: ZenohConfig, config: InferConfig) -> None:
         super().__init__(robot_id, zenoh_config)
         self.config = config
         self.store = ModelStore(config.store)

@@ -7,6 +7,7 @@ import numpy as np
 
 from courtloc.common.inbox import Delivery
 from courtloc.common.messages import Edges, Frame
+from courtloc.common.bus import ZenohConfig
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Topic
 from courtloc.services.preprocess.config import PreprocessConfig
@@ -16,7 +17,7 @@ from courtloc.services.preprocess.pipeline import FrameError, Preprocessor, deco
 class PreprocessService(Service):
     name = "preprocess"
 
-    def __init__(self, robot_id: str, zenoh_config, config: PreprocessConfig) -> None:  # noqa: ANN001
+    def __init__(self, robot_id: str, zenoh_config: ZenohConfig, config: PreprocessConfig) -> None:
         super().__init__(robot_id, zenoh_config)
         self.config = config
         self.preprocessor = Preprocessor(config)

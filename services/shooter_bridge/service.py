@@ -15,6 +15,7 @@ from typing import Optional
 
 from courtloc.common.inbox import Delivery
 from courtloc.common.messages import Header, Pose, ShotSolution
+from courtloc.common.bus import ZenohConfig
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Topic
 from courtloc.services.shooter_bridge.config import ShooterConfig
@@ -28,7 +29,7 @@ from courtloc.services.shooter_bridge.rpm import make_rpm_source
 class ShooterBridgeService(Service):
     name = "shooter_bridge"
 
-    def __init__(self, robot_id: str, zenoh_config, config: ShooterConfig) -> None:  # noqa: ANN001
+    def __init__(self, robot_id: str, zenoh_config: ZenohConfig, config: ShooterConfig) -> None:
         super().__init__(robot_id, zenoh_config)
         self.config = config
         # Built here, not in on_start: a bad ring, table or area stops the process before it joins the bus.
