@@ -129,6 +129,13 @@ CONTROLS: dict[str, Control] = {
 }
 
 
+# Benchmark-only hops (`courtloc bench pipeline --relay`): a frame passed along N processes doing
+# trivial work, the transport baseline the real chain is compared with. Not part of any deployment.
+RELAY_HOPS = 4
+RELAY_TOPICS: tuple[Topic, ...] = tuple(
+    _topic("bench", f"relay{i}", Frame, 30.0, "data_high", 100.0, "benchmark relay hop") for i in range(RELAY_HOPS))
+
+
 def liveliness_key(robot_id: str, service: str) -> str:
     return key_of(robot_id, f"{service}/alive")
 

@@ -17,6 +17,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in)")
     parser.add_argument("--seconds", type=float, default=20.0, help="measurement length")
     parser.add_argument("--json", type=Path, default=None, help="write the report here")
+    parser.add_argument("--relay", action="store_true",
+                        help="also measure the transport baseline in the same run: a raw frame handed along "
+                             "4 processes doing trivial work, and report the ratio")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -42,8 +45,58 @@ def run(args: argparse.Namespace) -> int:
         "drops": summary["drops"],
         "restarts": summary["restarts"],
     }
+    if args.relay:
+        relay = measure_relay(args.seconds)
+        report["relay_baseline"] = relay
+        if relay["e2e_latency_ms_p50"] and report["e2e_latency_ms_p50"]:
+            report["chain_over_relay_p50"] = report["e2e_latency_ms_p50"] / relay["e2e_latency_ms_p50"]
     text = json.dumps(report, indent=2)
     print(text)
     if args.json is not None:
         args.json.write_text(text)
     return 0
+
+
+def measure_relay(seconds: float, warmup_frames: int = 30, mode: str = "client") -> dict[str, float | int | None]:
+    """Router + the relay hops as processes (see courtloc/bench_relay.py); latency at the last hop."""
+    import socket
+    import subprocess
+
+    import numpy as np
+
+    from courtloc.common.services_table import RELAY_HOPS
+
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    python = [sys.executable, "-m", "courtloc"]
+    router = subprocess.Popen([*python, "router", "--listen", f"tcp/127.0.0.1:{port}"], stdout=subprocess.PIPE,
+                              stderr=subprocess.DEVNULL, text=True)
+    hops: list[subprocess.Popen] = []
+    try:
+        router.stdout.readline()  # "router listening ..."
+        for hop in reversed(range(RELAY_HOPS)):  # consumers first
+            hops.append(subprocess.Popen(
+                [sys.executable, "-m", "courtloc.bench_relay", "--hop", str(hop), "--port", str(port),
+                 "--seconds", str(seconds), "--mode", mode], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                stderr=subprocess.DEVNULL, text=True))
+        for proc in hops:
+            proc.stdout.readline()  # "ready": connected
+        for proc in hops:
+            proc.stdin.write("go\n")
+            proc.stdin.flush()
+        last = hops[0]
+        out, _ = last.communicate(timeout=seconds + 60)
+        spans = np.asarray(json.loads(out.strip().splitlines()[-1])[warmup_frames:])
+        for proc in hops[1:]:
+            proc.wait(timeout=seconds + 60)
+    finally:
+        for proc in [*hops, router]:
+            if proc.poll() is None:
+                proc.terminate()
+                proc.wait(timeout=10)
+    return {
+        "hops": RELAY_HOPS, "mode": mode, "frame_bytes": 640 * 480 * 3, "n": int(spans.size),
+        "e2e_latency_ms_p50": float(np.percentile(spans, 50)) if spans.size else None,
+        "e2e_latency_ms_p99": float(np.percentile(spans, 99)) if spans.size else None,
+    }
