@@ -1,6 +1,7 @@
 """Small counters and latency windows for health messages and benchmarks."""
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections import deque
@@ -51,7 +52,7 @@ class RateMeter:
 class RateLimitedLog:
     """Logs the first event of a kind at once, then at most one line per `period_s` with the count since."""
 
-    def __init__(self, logger: "logging.Logger", period_s: float = 5.0) -> None:  # noqa: F821
+    def __init__(self, logger: logging.Logger, period_s: float = 5.0) -> None:
         self._logger = logger
         self._period_s = period_s
         self._last: dict[str, float] = {}

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import threading
 import time
 
 import numpy as np
+import zenoh
 
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, declare_publisher, open_session
@@ -26,7 +26,7 @@ ROBOT = "bench"
 WIDTH, HEIGHT = 640, 480
 
 
-def _source(session, seconds: float, fps: float) -> None:  # noqa: ANN001
+def _source(session: zenoh.Session, seconds: float, fps: float) -> None:
     publisher = declare_publisher(session, RELAY_TOPICS[0], ROBOT)
     pixels = np.random.default_rng(0).integers(0, 255, (HEIGHT, WIDTH, 3), np.uint8).tobytes()
     period, deadline, seq = 1.0 / fps, time.monotonic(), 0
@@ -41,7 +41,7 @@ def _source(session, seconds: float, fps: float) -> None:  # noqa: ANN001
         stop.wait(max(0.0, deadline - time.monotonic()))
 
 
-def _hop(session, hop: int, seconds: float) -> list[float]:  # noqa: ANN001
+def _hop(session: zenoh.Session, hop: int, seconds: float) -> list[float]:
     """Forward (or, on the last hop, measure) every frame of the previous hop until `seconds` pass."""
     last = hop == RELAY_HOPS - 1
     inbox = LatestInbox()
@@ -89,5 +89,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    os.environ.setdefault("PYTHONUNBUFFERED", "1")
     raise SystemExit(main())

@@ -5,13 +5,12 @@ import argparse
 import json
 from pathlib import Path
 
+from courtloc.localizer.dataset_args import add_dataset_arguments
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("eval", help="evaluate a localization model on a labelled dataset")
-    parser.add_argument("--data", type=Path, required=True, help="dataset folder (images/ + labels)")
-    parser.add_argument("--csv", type=Path, default=None, help="label CSV (default DATA/pose_data.csv)")
-    parser.add_argument("--kind", choices=("dots", "raw"), default="dots",
-                        help="images are edge-dot images (seed) or raw camera frames")
+    add_dataset_arguments(parser)
     parser.add_argument("--model", type=Path, default=None,
                         help="a paper-network .onnx or a model folder (default: the bundled models/default)")
     parser.add_argument("--recordings", nargs="+", default=None, metavar="REC",
@@ -27,9 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=_eval)
 
     report = sub.add_parser("duplicates", help="recordings, frame counts and duplicate frames of a labelled dataset")
-    report.add_argument("--data", type=Path, required=True)
-    report.add_argument("--csv", type=Path, default=None)
-    report.add_argument("--kind", choices=("dots", "raw"), default="dots")
+    add_dataset_arguments(report)
     report.add_argument("--jaccard", type=float, default=0.1,
                         help="near-identical: Jaccard distance of the dot-pixel sets below this")
     report.set_defaults(func=_dataset)

@@ -131,3 +131,19 @@ def request_pose(client, frames: TwinFrames, seq: int, frame_index: int = 0):  #
     client.wait_subscribed("preprocess/edges")  # a put before the stage's route exists reaches nobody
     client.put_raw("preprocess/edges", codec.encode(frames.edges(frame_index, seq)))
     return client.wait_for("infer/pose", lambda p: p.header.seq == seq, timeout=10.0)
+
+
+def run_model_cli(config: Path, *args: str) -> tuple[int, dict, str]:
+    """`courtloc -v model ARGS --config CONFIG --json` as its own process, niced: the pit is another machine.
+
+    Returns (exit code, the robot's reply as JSON, the log on stderr).
+    """
+    import json
+    import subprocess
+
+    from buskit import PYTHON
+
+    done = subprocess.run(["nice", "-n", "10", *PYTHON, "-v", "model", *args, "--config", str(config), "--json"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.stdout, done.stderr
+    return done.returncode, json.loads(done.stdout), done.stderr

@@ -3,7 +3,6 @@ restart) and a disk that fills up while a model is stored. Real router, real sta
 `courtloc model` CLI as its own process, real files (a real small filesystem for the full disk)."""
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -17,7 +16,7 @@ from buskit import PYTHON, BusClient, free_port, start_router, start_stage, writ
 from courtloc.common.messages import Pose
 from courtloc.model_client import ModelClient
 from courtloc.services.infer.store import INCOMING, ModelStore
-from infer_models import TwinFrames, relabelled_package, request_pose, tiny_paper_model
+from infer_models import TwinFrames, relabelled_package, request_pose, run_model_cli, tiny_paper_model
 
 pytestmark = pytest.mark.integration
 
@@ -49,10 +48,7 @@ class Bench:
         return request_pose(self.client, self.frames, self.seq)
 
     def model(self, config: Path, *args: str) -> tuple[int, dict[str, Any], str]:
-        done = subprocess.run(["nice", "-n", "10", *PYTHON, "-v", "model", *args, "--config", str(config), "--json"],
-                              capture_output=True, text=True, timeout=120)
-        assert done.stdout, done.stderr
-        return done.returncode, json.loads(done.stdout), done.stderr
+        return run_model_cli(config, *args)
 
 
 @pytest.fixture(scope="module")

@@ -3,19 +3,17 @@ twin frames in, poses out, and `courtloc model ...` run as a separate process. T
 models, so every push here is signed with the test's key unless the test is about signatures."""
 from __future__ import annotations
 
-import json
 import math
-import subprocess
 from pathlib import Path
 from typing import Any, Iterator
 
 import pytest
 
-from buskit import PYTHON, BusClient, free_port, start_router, start_stage, write_config
+from buskit import BusClient, free_port, start_router, start_stage, write_config
 from courtloc.common.messages import Pose
 from courtloc.security.signing import generate_signing_key, sign_model, write_signing_keys
 from courtloc.services.infer.store import INCOMING, ModelStore
-from infer_models import TwinFrames, bundled_default, request_pose, tiny_paper_model, truncated_copy
+from infer_models import TwinFrames, bundled_default, request_pose, run_model_cli, tiny_paper_model, truncated_copy
 
 pytestmark = pytest.mark.integration
 
@@ -55,11 +53,8 @@ signing_public_key = "{tmp / 'sign.pub'}"
         return request_pose(self.client, self.frames, self.seq)
 
     def model(self, *args: str) -> tuple[int, dict[str, Any]]:
-        """`courtloc model ARGS --json` as its own (niced: the pit is another machine) process."""
-        done = subprocess.run(["nice", "-n", "10", *PYTHON, "model", *args, "--config", str(self.config), "--json"],
-                              capture_output=True, text=True, timeout=120)
-        assert done.stdout, done.stderr
-        return done.returncode, json.loads(done.stdout)
+        code, reply, _ = run_model_cli(self.config, *args)
+        return code, reply
 
     def stored(self) -> set[tuple[str, int]]:
         return {(m.ref.name, m.ref.version) for m in ModelStore(self.store_dir).models()}

@@ -10,7 +10,7 @@ import queue
 import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import cv2
 import numpy as np
@@ -82,6 +82,18 @@ class Recorder:
             seen.append(got)
             if got == key:
                 return seen
+
+
+def send_until_seen(send: Callable[[], None], recorder: Recorder, key: str, what: str) -> list[str]:
+    """Repeat `send` until `key` arrives (a new subscription takes a moment to reach the router);
+    returns every key received up to it, so a forbidden one that got through is in the list."""
+    for _ in range(100):
+        send()
+        try:
+            return recorder.until(key, timeout=0.2)
+        except queue.Empty:
+            continue
+    raise AssertionError(what)
 
 
 def _refused(cfg: ZenohConfig) -> bool:
@@ -160,17 +172,12 @@ def test_a_stage_may_publish_only_its_own_topics(bus: SecureBus) -> None:
         own = TOPICS["preprocess/edges"].key(ROBOT)
         forbidden = [TOPICS[p].key(ROBOT) for p in ("infer/pose", "camera/frame", "shooter_bridge/solution",
                                                      "infer/health")]
-        for _ in range(100):  # the pit's subscription may take a moment to reach the router
+        def forge_then_send_own() -> None:
             for key in forbidden:
                 forger.put(key, b"forged")
             forger.put(own, b"allowed")
-            try:
-                seen = everything.until(own, timeout=0.2)
-                break
-            except queue.Empty:
-                continue
-        else:
-            raise AssertionError("the stage's own topic never reached the pit")
+
+        seen = send_until_seen(forge_then_send_own, everything, own, "the stage's own topic never reached the pit")
         assert seen == [own], f"forbidden keys got through: {seen}"
     finally:
         sub.undeclare()
@@ -185,16 +192,11 @@ def test_a_stage_may_subscribe_only_its_inputs(bus: SecureBus) -> None:
     subs = [reader.declare_subscriber(truth_key, got), reader.declare_subscriber(frame_key, got)]
     camera = bus.open(bus.ours.robot.root, "camera")
     try:
-        for _ in range(100):
+        def send_truth_then_frame() -> None:
             camera.put(truth_key, b"truth")  # allowed for the camera, not readable by preprocess
             camera.put(frame_key, b"frame")
-            try:
-                seen = got.until(frame_key, timeout=0.2)
-                break
-            except queue.Empty:
-                continue
-        else:
-            raise AssertionError("the stage never received its input")
+
+        seen = send_until_seen(send_truth_then_frame, got, frame_key, "the stage never received its input")
         assert truth_key not in seen
     finally:
         for sub in subs:

@@ -5,13 +5,12 @@ import argparse
 import json
 from pathlib import Path
 
+from courtloc.localizer.dataset_args import add_dataset_arguments
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     train = sub.add_parser("train", help="train the paper network on a seed-format dataset (needs torch)")
-    train.add_argument("--data", type=Path, required=True, help="dataset folder (images/ + pose_data.csv)")
-    train.add_argument("--csv", type=Path, default=None, help="label CSV (default DATA/pose_data.csv)")
-    train.add_argument("--kind", choices=("dots", "raw"), default="dots",
-                       help="images are edge-dot images (seed) or raw camera frames")
+    add_dataset_arguments(train)
     train.add_argument("--out", type=Path, required=True, help="run folder: checkpoints, loss curve, model.pt")
     train.add_argument("--train-recordings", nargs="+", default=None, metavar="REC")
     train.add_argument("--val-recordings", nargs="*", default=None, metavar="REC",

@@ -11,7 +11,6 @@ consistent store.
 from __future__ import annotations
 
 import hashlib
-import json
 import logging
 import os
 import re
@@ -180,16 +179,4 @@ class ModelStore:
             raise StoreError("bad upload id")
         return self.root / INCOMING / upload_id
 
-    def clean_incoming(self, keep: set[str] = frozenset()) -> None:  # type: ignore[assignment]
-        for path in (self.root / INCOMING).iterdir():
-            if path.name not in keep:
-                shutil.rmtree(path, ignore_errors=True)
 
-
-def describe(model: StoredModel) -> dict[str, object]:
-    return {"name": model.ref.name, "version": model.ref.version, "size_bytes": model.size_bytes(),
-            "files": sorted(p.name for p in model.folder.iterdir())}
-
-
-def dump(record: ActiveRecord) -> str:
-    return json.dumps(record.model_dump(), indent=2)
