@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import shutil
 
 import cv2
 import numpy as np
@@ -15,6 +16,20 @@ from courtloc.services.preprocess.reference_scan import reference_preprocess, re
 from courtloc.services.preprocess.synthetic import line_frame, noise_frame
 
 
+@pytest.fixture(params=["native", "numpy"])
+def native(request: pytest.FixtureRequest) -> bool:
+    """Both scan implementations; the compiled one must be built wherever a C compiler is (see below)."""
+    if request.param == "native" and not RadialScanner(ScanConfig()).native:
+        pytest.skip("compiled radial scan not built")
+    return request.param == "native"
+
+
+def test_compiled_scan_is_built_where_a_compiler_is() -> None:
+    if shutil.which("cc") is None and shutil.which("gcc") is None:
+        pytest.skip("no C compiler on this machine: the numpy scan is the one in use")
+    assert RadialScanner(ScanConfig()).native, "pip install -e . should have compiled services/preprocess/scan_kernel.c"
+
+
 def any_size(config: PreprocessConfig) -> PreprocessConfig:
     return config.model_copy(update={"frame_width": None, "frame_height": None})
 
@@ -26,28 +41,28 @@ def assert_same_hits(fast: np.ndarray, reference: np.ndarray) -> None:
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_fast_equals_reference_on_drawn_line_frames(seed: int) -> None:
+def test_fast_equals_reference_on_drawn_line_frames(seed: int, native: bool) -> None:
     config = PreprocessConfig()
     frame = line_frame(np.random.default_rng(seed))
     reference = reference_preprocess(frame, config)
     assert len(reference) > 20  # the frame really has lines to find
-    assert_same_hits(Preprocessor(config).process(frame), reference)
+    assert_same_hits(Preprocessor(config, native=native).process(frame), reference)
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_fast_equals_reference_on_noise_frames(seed: int) -> None:
+def test_fast_equals_reference_on_noise_frames(seed: int, native: bool) -> None:
     config = PreprocessConfig()
     frame = noise_frame(np.random.default_rng(100 + seed))
     reference = reference_preprocess(frame, config)
     assert len(reference) > 1000
-    assert_same_hits(Preprocessor(config).process(frame), reference)
+    assert_same_hits(Preprocessor(config, native=native).process(frame), reference)
 
 
 @pytest.mark.parametrize("height,width", [(1, 1), (2, 7), (37, 53), (241, 319), (480, 360), (123, 640), (500, 99)])
-def test_fast_equals_reference_on_odd_frame_sizes(height: int, width: int) -> None:
+def test_fast_equals_reference_on_odd_frame_sizes(height: int, width: int, native: bool) -> None:
     config = any_size(PreprocessConfig(crop_top=0))
     rng = np.random.default_rng(height * 1000 + width)
-    preprocessor = Preprocessor(config)
+    preprocessor = Preprocessor(config, native=native)
     for frame in (line_frame(rng, height, width), noise_frame(rng, height, width)):
         assert_same_hits(preprocessor.process(frame), reference_preprocess(frame, config))
 
@@ -59,10 +74,10 @@ def test_fast_equals_reference_on_odd_frame_sizes(height: int, width: int) -> No
     ScanConfig(origin=(320.0, 240.0), angle_start_deg=0, angle_stop_deg=358, angle_step_deg=1.0, max_d=150),
     ScanConfig(origin=(100.5, 479.5), rounding="half_up", angle_step_deg=0.7),
 ])
-def test_fast_equals_reference_for_other_scan_settings(scan: ScanConfig) -> None:
+def test_fast_equals_reference_for_other_scan_settings(scan: ScanConfig, native: bool) -> None:
     config = PreprocessConfig(scan=scan)
     rng = np.random.default_rng(7)
-    preprocessor = Preprocessor(config)
+    preprocessor = Preprocessor(config, native=native)
     for frame in (line_frame(rng), noise_frame(rng)):
         assert_same_hits(preprocessor.process(frame), reference_preprocess(frame, config))
 
@@ -178,3 +193,36 @@ def test_the_mask_is_the_union_of_the_ranges() -> None:
     hsv = cv2.cvtColor(frame, cv2.COLOR_BGR2HSV)
     assert hsv[0, 1, 0] in range(100, 131)
     assert white_mask(frame, ranges).tolist() == [[255, 255, 0]]
+
+
+def test_bit_table_is_the_mask_of_every_colour() -> None:
+    white = WhiteMask(PreprocessConfig().hsv_ranges)
+    table = white.bit_table()
+    assert table.nbytes == 1 << 21 and not table.flags.writeable
+    assert white.bit_table() is table  # built once per instance
+    rng = np.random.default_rng(9)
+    colours = rng.integers(0, 256, (200_000, 3), dtype=np.uint8)
+    colours[:50] = [[255, 255, 255], [0, 0, 0], [170, 200, 215], [110, 110, 110]] * 12 + [[0, 0, 0]] * 2
+    key = (colours[:, 0].astype(np.int64) << 16) | (colours[:, 1].astype(np.int64) << 8) | colours[:, 2]
+    from_table = (table[key >> 3] >> (key & 7)) & 1
+    np.testing.assert_array_equal(from_table.astype(bool), white.pixels(colours) != 0)
+    assert 0 < from_table.sum() < len(from_table)
+
+
+def test_compiled_scan_refuses_a_table_that_points_outside_the_frame() -> None:
+    scanner = RadialScanner(ScanConfig())
+    if not scanner.native:
+        pytest.skip("compiled radial scan not built")
+    from courtloc.services.preprocess.native_scan import kernel_hit_samples, load_kernel
+
+    table = scanner.table(48, 64)
+    white = WhiteMask(PreprocessConfig().hsv_ranges)
+    frame = np.full((48, 64, 3), 255, np.uint8)
+    bad_offsets = table.pixel_offsets.copy()
+    bad_offsets[-1] = 48 * 64 * 3  # one past the last byte
+    with pytest.raises(ValueError, match="outside the frame"):
+        kernel_hit_samples(load_kernel(), frame, bad_offsets, table.sample_pixel32, table.has_predecessor,
+                           white.bit_table())
+    with pytest.raises(ValueError, match="white table"):
+        kernel_hit_samples(load_kernel(), frame, table.pixel_offsets, table.sample_pixel32, table.has_predecessor,
+                           np.zeros(10, np.uint8))

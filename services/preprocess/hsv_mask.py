@@ -1,8 +1,9 @@
 """The white mask: BGR -> OpenCV HSV -> union of `cv2.inRange` boxes, as 0/255 uint8.
 
-Two entry points compute the same per-pixel function: `white_mask` on a whole frame (debug preview,
-reference) and `white_mask_pixels` on a list of gathered pixels (the fast scan only looks at the pixels
-its rays visit). OpenCV's BGR->HSV conversion is per pixel, so both agree pixel for pixel; the tests check it.
+Three forms of the same per-pixel function: `WhiteMask.frame` on a whole frame (debug preview, reference),
+`WhiteMask.pixels` on a list of gathered pixels (the numpy scan only looks at the pixels its rays visit), and
+`WhiteMask.bit_table`, its value for every one of the 2^24 BGR colours, for the compiled scan. OpenCV's
+BGR->HSV conversion is per pixel, so all three agree; the tests check it.
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ class WhiteMask:
         if not ranges:
             raise ValueError("at least one HSV range is needed")
         self._bounds = _bounds(ranges)
+        self._bit_table: np.ndarray | None = None
 
     def frame(self, bgr: np.ndarray) -> np.ndarray:
         """(H, W, 3) uint8 BGR -> (H, W) uint8 mask, 255 where white."""
@@ -45,6 +47,25 @@ class WhiteMask:
         # A one-row image lets OpenCV convert the list exactly as it converts a frame.
         hsv = cv2.cvtColor(bgr_pixels.reshape(1, n, 3), cv2.COLOR_BGR2HSV)
         return _mask_of_hsv(hsv, self._bounds).reshape(n)
+
+
+    def bit_table(self) -> np.ndarray:
+        """The mask of every colour as 2 MiB of bits: colour (b, g, r) is bit k & 7 of byte k >> 3, k = b<<16 | g<<8 | r.
+
+        Computed by OpenCV itself (one 256 x 256 image of all (g, r) per blue level), so a lookup in it is
+        exactly `frame`. Built on first use (~0.1-0.2 s) and kept by this instance.
+        """
+        if self._bit_table is None:
+            image = np.empty((256, 256, 3), np.uint8)
+            image[..., 1] = np.arange(256, dtype=np.uint8)[:, None]
+            image[..., 2] = np.arange(256, dtype=np.uint8)[None, :]
+            table = np.empty((256, 256 * 256 // 8), np.uint8)
+            for blue in range(256):
+                image[..., 0] = blue
+                table[blue] = np.packbits(self.frame(image).reshape(-1) != 0, bitorder="little")
+            table.flags.writeable = False
+            self._bit_table = table.reshape(-1)
+        return self._bit_table
 
 
 def white_mask(bgr: np.ndarray, ranges: Sequence[HsvRange]) -> np.ndarray:

@@ -78,10 +78,21 @@ def read_image_file(path: str) -> np.ndarray:
 class Preprocessor:
     """Algorithm 1 for one configuration: BGR frame -> int16 (N, 4) hits (row, col, ray, d)."""
 
-    def __init__(self, config: PreprocessConfig) -> None:
+    def __init__(self, config: PreprocessConfig, native: bool | None = None) -> None:
+        """native: the compiled scan when built (None), never (False) or required (True); same hits."""
         self.config = config
         self._white = WhiteMask(config.hsv_ranges)
-        self._scanner = RadialScanner(config.scan)
+        self._scanner = RadialScanner(config.scan, native=native)
+
+    @property
+    def native(self) -> bool:
+        return self._scanner.native
+
+    def warm_up(self) -> None:
+        """Build the tables for the configured frame size now (a frame of unknown size builds its own later)."""
+        width, height = self.config.frame_width, self.config.frame_height
+        if width is not None and height is not None:
+            self.process(np.zeros((height, width, 3), np.uint8))
 
     def check(self, bgr: object) -> np.ndarray:
         return check_bgr(bgr, self.config.frame_width, self.config.frame_height)

@@ -14,6 +14,11 @@ Two exact simplifications of the reference walk, both decided at table time:
   predecessor's, so it can neither be a hit nor change the next comparison, and a hit is always reported
   at the first sample of a new pixel, which is kept.
 All rays' samples are laid end to end in one array; `pair_on_ray` masks the pairs that straddle two rays.
+
+Two implementations of the per-frame work share the tables: the compiled kernel (`scan_kernel.c`: white
+test by a lookup in `WhiteMask.bit_table`, then the neighbour comparison, in two C loops), used when it was
+built, and the numpy path below (OpenCV's HSV conversion and `inRange` on the gathered pixels). Both equal
+the reference; `RadialScanner(native=False)` forces numpy (the benchmark runs both).
 """
 from __future__ import annotations
 
@@ -26,6 +31,7 @@ import numpy as np
 
 from courtloc.services.preprocess.config import ScanConfig
 from courtloc.services.preprocess.hsv_mask import WhiteMask
+from courtloc.services.preprocess.native_scan import kernel_hit_samples, load_kernel
 
 HIT_COLUMNS = ("row", "col", "ray", "d")
 HIT_DTYPE = np.int16
@@ -48,6 +54,8 @@ class RayTable:
     pair_on_ray: (S-1,) True where samples i and i+1 belong to the same ray.
     sample_hit: (S, 4) int16 (row, col, ray, d) to report when that sample is a hit.
     ray_start: (n_rays + 1,) offset of each ray's first sample.
+    For the compiled kernel: pixel_offsets (P,) int32 byte offsets of the pixels in a BGR frame,
+    sample_pixel32 (S,) int32, has_predecessor (S,) uint8 (1: sample i-1 is on the same ray).
     """
 
     height: int
@@ -61,6 +69,9 @@ class RayTable:
     pair_on_ray: np.ndarray
     sample_hit: np.ndarray
     ray_start: np.ndarray
+    pixel_offsets: np.ndarray
+    sample_pixel32: np.ndarray
+    has_predecessor: np.ndarray
 
     @property
     def n_rays(self) -> int:
@@ -113,6 +124,8 @@ def build_ray_table(height: int, width: int, scan: ScanConfig) -> RayTable:
     padded = np.full(-(-len(pixels) // _GATHER_ROW) * _GATHER_ROW, pixels[-1] if len(pixels) else 0, np.int64)
     padded[: len(pixels)] = pixels
     sample_hit = np.stack([sample_flat // width, sample_flat % width, sample_ray, sample_d], axis=-1)
+    has_predecessor = np.zeros(len(sample_flat), np.uint8)
+    has_predecessor[1:] = pair_on_ray
     table = RayTable(
         height=height,
         width=width,
@@ -125,6 +138,10 @@ def build_ray_table(height: int, width: int, scan: ScanConfig) -> RayTable:
         pair_on_ray=pair_on_ray,
         sample_hit=sample_hit.astype(HIT_DTYPE).reshape(-1, 4),
         ray_start=ray_start,
+        # int32 offsets bound the frame to 2^31 bytes; larger frames use the numpy path (see scan_bgr).
+        pixel_offsets=(pixels * 3).astype(np.int32) if height * width * 3 < 2**31 else np.zeros(0, np.int32),
+        sample_pixel32=sample_pixel.reshape(-1).astype(np.int32),
+        has_predecessor=has_predecessor,
     )
     for value in vars(table).values():  # shared by every frame of this size: nobody may write to it
         if isinstance(value, np.ndarray):
@@ -147,9 +164,13 @@ def hits_of_values(values: np.ndarray, table: RayTable) -> np.ndarray:
 class RadialScanner:
     """Algorithm 1 for one scan configuration; ray tables are built once per frame size and kept."""
 
-    def __init__(self, scan: ScanConfig, max_cached_sizes: int = 4) -> None:
+    def __init__(self, scan: ScanConfig, max_cached_sizes: int = 4, native: bool | None = None) -> None:
+        """native: None uses the compiled kernel when it was built, False always numpy, True requires it."""
         self.scan = scan
         self._max_cached = max_cached_sizes
+        self._kernel = None if native is False else load_kernel()
+        if native and self._kernel is None:
+            raise RuntimeError("the compiled radial scan is not built (pip install -e . with a C compiler)")
         self._tables: OrderedDict[tuple[int, int], RayTable] = OrderedDict()
 
     def table(self, height: int, width: int) -> RayTable:
@@ -170,11 +191,19 @@ class RadialScanner:
         values = np.ascontiguousarray(mask).reshape(-1)[table.sample_flat] != 0
         return hits_of_values(values, table)
 
+    @property
+    def native(self) -> bool:
+        return self._kernel is not None
+
     def scan_bgr(self, bgr: np.ndarray, white: WhiteMask) -> np.ndarray:
         """Hits of a (H, W, 3) uint8 BGR frame, masking only the pixels the rays visit."""
         table = self.table(bgr.shape[0], bgr.shape[1])
         if table.sample_pixel.shape[0] < 2:
             return empty_hits()
+        if self._kernel is not None and table.pixel_offsets.shape[0] == table.pixels.shape[0]:
+            hit_samples = kernel_hit_samples(self._kernel, np.ascontiguousarray(bgr), table.pixel_offsets,
+                                             table.sample_pixel32, table.has_predecessor, white.bit_table())
+            return table.sample_hit[hit_samples]
         # cv2.remap with nearest-neighbour and integral maps is an exact, fast gather of pixels.
         pixels = cv2.remap(np.ascontiguousarray(bgr), table.gather_x, table.gather_y, cv2.INTER_NEAREST)
         values = white.frame(pixels).reshape(-1)[table.sample_pixel]
