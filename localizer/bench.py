@@ -1,12 +1,14 @@
 """Per-frame time of the geometric localizer after preprocessing (hits in, pose out), tracking vs cold start.
 
 Frames are the digital twin's: rendered at random poses and run through the robot's own preprocess code,
-so the bench needs no dataset. Timed per frame, on the runtime path (onnxruntime hits -> floor points,
-then the numpy fit): tracking = started from the true pose moved by a typical between-frame motion;
-cold start = no previous pose (global search). One onnxruntime thread; pin the process to one core
-(taskset -c 0) to measure "one CPU core". `--compare-sequential` also times, interleaved frame by frame
-in the same run, the path that fits a frame's starts one at a time (the pre-batching tracking path), so
-the ratio holds on a noisy machine.
+so the bench needs no dataset. Timed per frame, on the runtime path (`GeometricPredictor.predict`:
+hits -> floor points -> fit -> Prediction): tracking = started from the true pose moved by a typical
+between-frame motion; cold start = no previous pose (global search). Both paths are timed in the same
+run, interleaved frame by frame so that the ratio holds on a noisy machine: the compiled one (fit_kernel.c:
+table lookup + geometry + the whole fit in C, what runs when the kernel is built) and the numpy reference
+(onnxruntime + numpy, the fallback without a compiler). One onnxruntime thread; pin the process to one
+core (taskset -c 0) to measure "one CPU core". `--compare-sequential` also times the path that fits a
+frame's starts one at a time (the pre-batching tracking path).
 """
 from __future__ import annotations
 
@@ -49,12 +51,21 @@ def _frames(predictor, n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]
 
 def _stats(ms: list[float]) -> dict:
     a = np.asarray(ms)
+    if a.size == 0:
+        return {"n": 0}
     return {"n": int(a.size), "median_ms": float(np.median(a)), "p95_ms": float(np.percentile(a, 95)),
             "mean_ms": float(a.mean())}
 
 
+def _timed(fn) -> tuple[float, object]:
+    t0 = time.perf_counter()
+    out = fn()
+    return (time.perf_counter() - t0) * 1e3, out
+
+
 def run(args: argparse.Namespace) -> int:
     from courtloc.localizer.eval import default_model_path
+    from courtloc.localizer.fit import kernel_active, kernel_enabled
     from courtloc.localizer.predictor import load_predictor
 
     package = args.package or default_model_path()
@@ -62,43 +73,62 @@ def run(args: argparse.Namespace) -> int:
     frames = _frames(predictor, args.frames, args.seed)
     rng = np.random.default_rng(args.seed + 1)
     w, h = predictor.width, predictor.height
+    compiled = kernel_active()
     sequential = None
     if args.compare_sequential:
         from courtloc.localizer.geometric import GeometricLocalizer
 
         loc = predictor.localizer
         sequential = GeometricLocalizer(loc.court, loc.camera, loc.config, field=loc.field, batch_starts=False)
-    track_ms, seq_ms, cold_ms, onnx_ms, errors, seq_diff = [], [], [], [], [], []
+    ms: dict[str, list[float]] = {k: [] for k in ("track", "track_numpy", "cold", "cold_numpy", "onnx", "seq")}
+    errors, path_diff, seq_diff = [], [], []
+
+    def numpy_predict(*a, **kw):
+        with kernel_enabled(False):
+            return predictor.predict(*a, **kw)
+
     for pose, hits in frames:
         predictor.predict(hits, w, h, previous=pose)  # warm caches
+        numpy_predict(hits, w, h, previous=pose)
         for _ in range(args.repeats):
             # ~0.6 m/s at 10 Hz: the previous answer is a few centimetres and a degree off.
             start = pose + np.array([rng.normal(0, 0.05), rng.normal(0, 0.05), rng.normal(0, 0.02)])
-            t0 = time.perf_counter()
-            pred = predictor.predict(hits, w, h, previous=start)
-            track_ms.append((time.perf_counter() - t0) * 1e3)
+            t, pred = _timed(lambda: predictor.predict(hits, w, h, previous=start))
+            ms["track"].append(t)
             errors.append(math.hypot(pred.x - pose[0], pred.y - pose[1]))
-            t0 = time.perf_counter()
-            predictor.floor_points(hits)
-            onnx_ms.append((time.perf_counter() - t0) * 1e3)
+            if compiled:
+                t, ref = _timed(lambda: numpy_predict(hits, w, h, previous=start))
+                ms["track_numpy"].append(t)
+                path_diff.append(max(abs(ref.x - pred.x), abs(ref.y - pred.y)))
+            ms["onnx"].append(_timed(lambda: predictor.floor_points(hits))[0])
             if sequential is not None:
-                t0 = time.perf_counter()
-                res = sequential.localize_points(predictor.floor_points(hits), start)
-                seq_ms.append((time.perf_counter() - t0) * 1e3)
+                t, res = _timed(lambda: sequential.localize(predictor.projected_hits(hits), start))
+                ms["seq"].append(t)
                 seq_diff.append(math.hypot(res.pose[0] - pred.x, res.pose[1] - pred.y))
         for _ in range(args.cold_repeats):
-            t0 = time.perf_counter()
-            predictor.predict(hits, w, h)
-            cold_ms.append((time.perf_counter() - t0) * 1e3)
+            t, pred = _timed(lambda: predictor.predict(hits, w, h))
+            ms["cold"].append(t)
+            if compiled:
+                t, ref = _timed(lambda: numpy_predict(hits, w, h))
+                ms["cold_numpy"].append(t)
+                path_diff.append(max(abs(ref.x - pred.x), abs(ref.y - pred.y)))
     result = {
         "bench": "localize", "package": str(package), "frames": len(frames),
         "hits_per_frame_median": float(np.median([len(f[1]) for f in frames])),
-        "tracking": _stats(track_ms), "cold_start": _stats(cold_ms), "onnx_hits_to_floor": _stats(onnx_ms),
+        "compiled_kernel": compiled,
+        "tracking": _stats(ms["track"]), "cold_start": _stats(ms["cold"]),
+        "onnx_hits_to_floor": _stats(ms["onnx"]),
         "tracking_error_median_m": float(np.median(errors)),
     }
+    if compiled:
+        result["tracking_numpy"] = _stats(ms["track_numpy"])
+        result["tracking_speedup_median"] = float(np.median(ms["track_numpy"]) / np.median(ms["track"]))
+        if ms["cold"]:
+            result["cold_start_numpy"] = _stats(ms["cold_numpy"])
+            result["cold_start_speedup_median"] = float(np.median(ms["cold_numpy"]) / np.median(ms["cold"]))
+        result["kernel_vs_numpy_max_diff_m"] = float(np.max(path_diff))
     if sequential is not None:
-        result["tracking_sequential_starts"] = _stats(seq_ms)
-        result["tracking_speedup_median"] = float(np.median(seq_ms) / np.median(track_ms))
+        result["tracking_sequential_starts"] = _stats(ms["seq"])
         result["sequential_vs_batched_max_diff_m"] = float(np.max(seq_diff))
     text = json.dumps(result, indent=1)
     print(text)

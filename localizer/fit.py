@@ -13,14 +13,41 @@ Pitch changes every hit's angle below the horizon by the same amount, roll by ta
 """
 from __future__ import annotations
 
+import logging
 import math
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 
+from courtloc.localizer import fit_kernel
 from courtloc.localizer.config import FitConfig, QualityConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.projection import ProjectedHits
+
+log = logging.getLogger(__name__)
+# The compiled kernel (fit_kernel.c) when it was built; this file's numpy code is the reference it is
+# tested against and the fallback without a compiler. A context variable, so that switching it for a
+# comparison (tests, `courtloc bench localize`) does not leak into other threads.
+_use_kernel: ContextVar[bool] = ContextVar("courtloc_fit_kernel", default=True)
+_fallback_logged = False
+
+
+def kernel_active() -> bool:
+    """Whether fit_poses (and the predictor's hits -> geometry step) run compiled in this context."""
+    return fit_kernel.available() and _use_kernel.get()
+
+
+@contextmanager
+def kernel_enabled(enabled: bool) -> Iterator[bool]:
+    """Within the block fit_poses uses the compiled kernel (if built) or numpy; yields kernel_active()."""
+    token = _use_kernel.set(enabled)
+    try:
+        yield kernel_active()
+    finally:
+        _use_kernel.reset(token)
 
 
 @dataclass(frozen=True)
@@ -36,6 +63,9 @@ class FitResult:
     valid: bool
     quality: float  # 0..1
     tilt: tuple[float, float] = (0.0, 0.0)  # estimated (pitch, roll) of the body, rad
+    # (3, 3) covariance of (x, y, yaw), m^2 / m rad / rad^2, from the normal matrix behind the stds
+    # (inliers at unit weight, i.e. hit noise as configured; tilt marginalised); None without a fit.
+    covariance: np.ndarray | None = None
 
 
 class _FrameTerms:
@@ -135,18 +165,53 @@ def fit_pose(field: CourtField, hits: ProjectedHits, start: np.ndarray, cfg: Fit
 
 def fit_poses(field: CourtField, hits: ProjectedHits, starts: np.ndarray, cfg: FitConfig,
               quality: QualityConfig, iterations: int | None = None) -> list[FitResult]:
-    """Refine each of `starts` (S, 3) independently by IRLS, all in the same numpy calls.
+    """Refine each of `starts` (S, 3) independently by IRLS, all in one call of the compiled kernel (or,
+    without it, in the same numpy calls).
 
     Each start stops on its own once its step is below tolerance (its pose is then frozen), so every
     result equals what a fit from that start alone would give.
     """
     starts = np.atleast_2d(np.asarray(starts, np.float64))
     n_starts = starts.shape[0]
+    n = len(hits)
+    if n < 3:
+        return [_result(s[:3].copy(), (0.0, 0.0), np.inf, n, 0, 0.0, np.inf, np.inf, np.inf, quality)
+                for s in starts]
+    max_it = iterations or cfg.max_iterations
+    kfield = _kernel_field(field)
+    if kfield is None:
+        return _fit_poses_numpy(field, hits, starts, cfg, quality, max_it)
+    out = fit_kernel.run(kfield, hits, starts[:, :3], cfg, quality.inlier_sigmas, max_it)
+    poses = out[:, :3].copy()
+    covs = out[:, fit_kernel.COV].reshape(n_starts, 3, 3)
+    results = []
+    # Plain floats from here: numpy scalars would cost more than the arithmetic.
+    for s, (_, _, _, pitch, roll, cost, n_in, rms, pos_std, yaw_std, *_, cov_ok) in enumerate(out.tolist()):
+        n_in = int(n_in)
+        results.append(_result(poses[s], (pitch, roll), cost, n, n_in, n_in / n, rms, pos_std, yaw_std, quality,
+                               covs[s].copy() if cov_ok else None))
+    return results
+
+
+def _kernel_field(field: CourtField):
+    """The kernel's view of `field`, or None for the numpy path (disabled, not built, unusable field)."""
+    global _fallback_logged
+    if not kernel_active():
+        if not fit_kernel.available() and not _fallback_logged:
+            _fallback_logged = True
+            log.warning("compiled fit kernel not built (no C compiler at install?): using the numpy fit, "
+                        "several times slower")
+        return None
+    return fit_kernel.kernel_field(field)
+
+
+def _fit_poses_numpy(field: CourtField, hits: ProjectedHits, starts: np.ndarray, cfg: FitConfig,
+                     quality: QualityConfig, max_it: int) -> list[FitResult]:
+    """fit_poses in numpy: the reference implementation (and the fallback without the compiled kernel)."""
+    n_starts = starts.shape[0]
     params = np.zeros((n_starts, 5))
     params[:, :3] = starts[:, :3]
-    n = len(hits.points)
-    if n < 3:
-        return [_result(p, np.inf, n, 0, 0.0, np.inf, np.inf, np.inf, quality) for p in params]
+    n = len(hits)
     tilt = cfg.tilt_sigma_deg > 0
     k = 5 if tilt else 3
     prior = np.zeros(5)
@@ -156,7 +221,6 @@ def fit_poses(field: CourtField, hits: ProjectedHits, starts: np.ndarray, cfg: F
     eye = np.eye(k)
     prior_diag = np.diag(prior_k)
     terms = _FrameTerms(hits, cfg)
-    max_it = iterations or cfg.max_iterations
     rows = np.r_[0:k, 5]  # the estimated parameters' Jacobian rows and z
     done = np.zeros(n_starts, bool)
     for it in range(max_it + 1):
@@ -191,13 +255,16 @@ def fit_poses(field: CourtField, hits: ProjectedHits, starts: np.ndarray, cfg: F
     jk = j[:, :k]
     hh = (jk * inl[:, None, :]) @ jk.transpose(0, 2, 1) + (prior_diag + eye * 1e-12)
     stds = _pose_stds(hh)
-    return [_result(params[s], float(cost[s]), n, int(n_in[s]), int(n_in[s]) / max(n, 1),
-                    float(rms[s]) if n_in[s] else np.inf, stds[s][0], stds[s][1], quality) for s in range(n_starts)]
+    return [_result(params[s, :3].copy(), (float(params[s, 3]), float(params[s, 4])), float(cost[s]), n,
+                    int(n_in[s]), int(n_in[s]) / max(n, 1), float(rms[s]) if n_in[s] else np.inf, stds[s][0],
+                    stds[s][1], quality, stds[s][2])
+            for s in range(n_starts)]
 
 
 
-def _pose_stds(hh: np.ndarray) -> list[tuple[float, float]]:
-    """(worst-direction position std, yaw std) per (k, k) normal matrix of the (S, k, k) stack."""
+def _pose_stds(hh: np.ndarray) -> list[tuple[float, float, np.ndarray | None]]:
+    """(worst-direction position std, yaw std, (3, 3) pose covariance) per (k, k) normal matrix of the
+    (S, k, k) stack; the pose block of the inverse is the covariance with tilt marginalised."""
     try:
         covs = np.linalg.inv(hh)
     except np.linalg.LinAlgError:  # one singular matrix fails the whole stack: invert one by one
@@ -210,24 +277,24 @@ def _pose_stds(hh: np.ndarray) -> list[tuple[float, float]]:
     out = []
     for cov in covs:
         if cov is None:
-            out.append((np.inf, np.inf))
+            out.append((np.inf, np.inf, None))
             continue
         a, b, c = float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
         worst = 0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))  # larger 2x2 eigenvalue
-        out.append((math.sqrt(max(worst, 0.0)), math.sqrt(max(float(cov[2, 2]), 0.0))))
+        out.append((math.sqrt(max(worst, 0.0)), math.sqrt(max(float(cov[2, 2]), 0.0)), np.array(cov[:3, :3])))
     return out
 
 
-def _result(params: np.ndarray, cost: float, n: int, n_in: int, ratio: float, rms: float, pos_std: float,
-            yaw_std: float, q: QualityConfig) -> FitResult:
+def _result(pose: np.ndarray, tilt: tuple[float, float], cost: float, n: int, n_in: int, ratio: float, rms: float,
+            pos_std: float, yaw_std: float, q: QualityConfig, covariance: np.ndarray | None = None) -> FitResult:
     valid = (n_in >= q.min_inliers and ratio >= q.min_inlier_ratio and pos_std <= q.max_position_std_m
              and yaw_std <= math.radians(q.max_yaw_std_deg))
-    if not np.isfinite(pos_std) or not np.isfinite(yaw_std):
+    if not math.isfinite(pos_std) or not math.isfinite(yaw_std):
         score = 0.0
     else:
         score = (min(1.0, n_in / (2.0 * q.min_inliers)) * min(1.0, ratio / max(q.min_inlier_ratio, 1e-9) * 0.5 + 0.5)
                  * math.exp(-pos_std / q.max_position_std_m) * math.exp(-math.degrees(yaw_std) / q.max_yaw_std_deg))
         score = score if valid else min(score, 0.49)
-    return FitResult(pose=params[:3].copy(), cost=cost, n_hits=n, n_inliers=n_in, inlier_ratio=ratio, rms_m=rms,
+    return FitResult(pose=pose, cost=cost, n_hits=n, n_inliers=n_in, inlier_ratio=ratio, rms_m=rms,
                      position_std_m=pos_std, yaw_std_rad=yaw_std, valid=bool(valid), quality=float(score),
-                     tilt=(float(params[3]), float(params[4])))
+                     tilt=tilt, covariance=covariance)

@@ -1,8 +1,11 @@
 """The runtime predictor: a model file or package in, `predict(hits, width, height, previous)` out.
 
 What the infer service calls. The manifest's input kind decides how hits are fed:
-- 'scan_hits' (a geometric localizer package folder): onnxruntime turns hits into floor points, then
-  the numpy fit (courtloc.localizer.geometric) gives x, y, yaw, quality. `previous` enables tracking.
+- 'scan_hits' (a geometric localizer package folder): the package's ONNX turns hits into floor points,
+  then the fit (courtloc.localizer.geometric) gives x, y, yaw, quality. `previous` enables tracking.
+  With the compiled kernel built (fit_kernel.c), hits -> floor points is a lookup into the ONNX file's
+  own floor table, fused with the per-hit geometry in one C call (an onnxruntime run alone costs more
+  than the whole compiled fit); without it, onnxruntime and numpy as before.
 - 'dense_image' / 'sparse_hits' (the paper network, an .onnx file): hits are drawn as the dot image
   (courtloc.localizer.paper_input) and the network gives x, y; no yaw; quality 1 (it has no self-check).
 Stateless: the caller keeps the previous pose (e.g. the last valid Prediction).
@@ -55,6 +58,8 @@ def _session(path: Path, providers: Sequence[str] | None, threads: int):
 
 def _as_hits(hits: np.ndarray) -> np.ndarray:
     h = np.asarray(hits)
+    if h.dtype == np.int16 and h.ndim == 2 and h.shape[1] == 4 and h.flags.c_contiguous:
+        return h  # what the preprocess stage sends: nothing to convert
     if h.size == 0:
         return np.zeros((0, 4), np.int16)
     if h.ndim != 2 or h.shape[1] < 2:
@@ -62,6 +67,20 @@ def _as_hits(hits: np.ndarray) -> np.ndarray:
     if h.shape[1] < 4:
         h = np.column_stack([h, np.zeros((len(h), 4 - h.shape[1]))])
     return np.rint(h[:, :4]).astype(np.int16)
+
+
+def _floor_table(model_path: Path, shape: tuple[int, int]) -> np.ndarray:
+    """The package ONNX's floor table (the initializer onnx_graph.build_graph stores), (H * W, 2) float32."""
+    import onnx
+    from onnx import numpy_helper
+
+    for init in onnx.load(str(model_path)).graph.initializer:
+        if init.name == "floor_table":
+            table = np.ascontiguousarray(numpy_helper.to_array(init), np.float32)
+            if table.shape != (shape[0] * shape[1], 2):
+                raise ManifestError(f"{model_path}: floor table {table.shape} does not match {shape[1]}x{shape[0]}")
+            return table
+    raise ManifestError(f"{model_path}: no floor_table initializer")
 
 
 def _previous_pose(previous) -> Optional[np.ndarray]:
@@ -72,7 +91,7 @@ def _previous_pose(previous) -> Optional[np.ndarray]:
             return None
         return np.array([previous.x, previous.y, previous.yaw])
     pose = np.asarray(previous, np.float64).reshape(-1)
-    if pose.size != 3 or not np.all(np.isfinite(pose)):
+    if pose.size != 3 or not all(map(math.isfinite, pose.tolist())):
         raise ValueError(f"previous pose must be (x, y, yaw), got {previous!r}")
     return pose
 
@@ -80,23 +99,33 @@ def _previous_pose(previous) -> Optional[np.ndarray]:
 class GeometricPredictor:
     def __init__(self, folder: Path, providers: Sequence[str] | None = None, threads: int = 1,
                  config=None) -> None:
+        from courtloc.localizer.fit import kernel_active
         from courtloc.localizer.geometric import GeometricLocalizer
         from courtloc.localizer.package import load_package
 
+        self._kernel_active = kernel_active
         self.package = load_package(folder, config)
         self.manifest = self.package.manifest
         self.session = _session(self.package.model_path, providers, threads)
         self.localizer = GeometricLocalizer(self.package.court, self.package.camera, self.package.config)
         self.width, self.height = self.package.camera.width, self.package.camera.height
+        self.floor_table = _floor_table(self.package.model_path, (self.height, self.width))
 
     def floor_points(self, hits: np.ndarray) -> np.ndarray:
+        """The ONNX graph's answer: (N, 2) float32 floor points, NaN where a hit sees no floor."""
         return self.session.run(None, {"hits": _as_hits(hits)})[0]
+
+    def projected_hits(self, hits: np.ndarray):  # -> projection.ProjectedHits
+        """The fit's per-hit geometry: compiled table lookup when the kernel runs, else onnxruntime + numpy."""
+        if self._kernel_active():
+            return self.localizer.geometry.from_table(self.floor_table, _as_hits(hits))
+        return self.localizer.geometry.from_points(self.floor_points(hits))
 
     def predict(self, hits: np.ndarray, width: int, height: int,
                 previous: Optional[Prediction | Sequence[float]] = None) -> Prediction:
         if (width, height) != (self.width, self.height):
             raise ValueError(f"frame {width}x{height} does not match the package camera {self.width}x{self.height}")
-        res = self.localizer.localize_points(self.floor_points(hits), _previous_pose(previous))
+        res = self.localizer.localize(self.projected_hits(hits), _previous_pose(previous))
         x, y, yaw = (float(v) for v in res.pose)
         return Prediction(x=x, y=y, yaw=yaw, quality=res.quality, valid=res.valid, mode=res.mode,
                           n_hits=res.fit.n_hits, n_inliers=res.fit.n_inliers,

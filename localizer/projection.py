@@ -12,33 +12,85 @@ Besides the point, the fit needs per hit
 - the unit direction of its scan ray on the floor (image rays from the scan origin are straight, and the
   floor homography keeps them straight, so on the floor they run from the origin's floor point outwards),
 - the floor error one pixel causes: range^2 / (f h) along the view, range / f across it.
+
+All per-hit arrays are views into one packed (N, 12) array (PACKED_COLUMNS), which the compiled fit
+(fit_kernel.c) reads as it is; with the kernel built, hits -> table -> geometry is one C call too.
 """
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
-from pydantic import BaseModel, ConfigDict
 
 from courtloc.sim.camera import CameraModel
 
+try:
+    from courtloc.localizer import _fit_kernel
+except ImportError:  # built without a C compiler: the numpy path below
+    _fit_kernel = None
 
-class ProjectedHits(BaseModel):
-    """Floor geometry of a frame's usable hits, robot frame; arrays of equal length."""
+# Columns of the packed per-hit geometry (fit_kernel.c's H_* constants): point x, y | ray dir x, y |
+# sigma along, across | view dir x, y | range | depression | tan(azimuth) | unused.
+PACKED_COLUMNS = 12
 
-    model_config = ConfigDict(arbitrary_types_allowed=True)
-    points: np.ndarray  # (N, 2) float64 metres
-    ray_dirs: np.ndarray  # (N, 2) unit, outward along the scan ray
-    sigma: np.ndarray  # (N, 2) metres of floor error per pixel: (along the view, across it)
-    view_dirs: np.ndarray  # (N, 2) unit, from the camera to the point
-    range_m: np.ndarray  # (N,) metres from the camera
-    cpoints: np.ndarray  # the same vectors as complex numbers (x + iy), for the fit's arithmetic
-    cray: np.ndarray
-    cview: np.ndarray
+
+class ProjectedHits:
+    """Floor geometry of a frame's usable hits, robot frame: named views of one packed (N, PACKED_COLUMNS)
+    float64 array, made on first use (the compiled fit reads `packed` alone; a plain class, not a
+    pydantic model: it is built on every frame from arrays made right here, nothing to validate)."""
+
+    def __init__(self, packed: np.ndarray, camera_xy: complex, camera_height: float) -> None:
+        if packed.ndim != 2 or packed.shape[1] != PACKED_COLUMNS:
+            raise ValueError(f"packed hits must be (N, {PACKED_COLUMNS}), got {packed.shape}")
+        self.packed = packed
+        self.camera_xy = camera_xy
+        self.camera_height = camera_height
+
+    def __len__(self) -> int:
+        return self.packed.shape[0]
+
+    @cached_property
+    def points(self) -> np.ndarray:  # (N, 2) metres
+        return self.packed[:, 0:2]
+
+    @cached_property
+    def ray_dirs(self) -> np.ndarray:  # (N, 2) unit, outward along the scan ray
+        return self.packed[:, 2:4]
+
+    @cached_property
+    def sigma(self) -> np.ndarray:  # (N, 2) metres of floor error per pixel: (along the view, across it)
+        return self.packed[:, 4:6]
+
+    @cached_property
+    def view_dirs(self) -> np.ndarray:  # (N, 2) unit, from the camera to the point
+        return self.packed[:, 6:8]
+
+    @cached_property
+    def range_m(self) -> np.ndarray:  # (N,) metres from the camera
+        return self.packed[:, 8]
+
     # For the per-frame tilt (body pitch/roll) the fit may estimate: each point's angle below the
     # horizon and tan of its azimuth (roll changes that angle in proportion to it).
-    depression: np.ndarray
-    tan_azimuth: np.ndarray
-    camera_xy: complex
-    camera_height: float
+    @cached_property
+    def depression(self) -> np.ndarray:
+        return self.packed[:, 9]
+
+    @cached_property
+    def tan_azimuth(self) -> np.ndarray:
+        return self.packed[:, 10]
+
+    # The same vectors as complex numbers (x + iy), for the numpy fit's arithmetic.
+    @cached_property
+    def cpoints(self) -> np.ndarray:
+        return self.packed[:, 0:2].view(np.complex128)[:, 0]
+
+    @cached_property
+    def cray(self) -> np.ndarray:
+        return self.packed[:, 2:4].view(np.complex128)[:, 0]
+
+    @cached_property
+    def cview(self) -> np.ndarray:
+        return self.packed[:, 6:8].view(np.complex128)[:, 0]
 
 
 def scan_origin_rc(camera: CameraModel) -> tuple[float, float]:
@@ -70,6 +122,7 @@ class HitGeometry:
             raise ValueError("the scan origin pixel sees no floor: check the camera's pitch and height")
         self.origin_floor = origin
         self._cam_xy = np.array([camera.mount.x, camera.mount.y])
+        self._camera_xy = complex(*self._cam_xy)
         self._k_along = 1.0 / (camera.fy * camera.mount.height)
         self._k_across = 1.0 / camera.fx
 
@@ -77,20 +130,43 @@ class HitGeometry:
         """Geometry of the finite rows of `points` (NaN rows: no floor or outside the image)."""
         pts = np.asarray(points, np.float64)
         pts = pts[np.all(np.isfinite(pts), axis=1)]
+        packed = np.zeros((len(pts), PACKED_COLUMNS))
+        packed[:, 0:2] = pts
         rel = pts - self._cam_xy
         rng = np.hypot(rel[:, 0], rel[:, 1])
         view = rel / np.maximum(rng, 1e-9)[:, None]
         ray = pts - self.origin_floor
         ray /= np.maximum(np.hypot(ray[:, 0], ray[:, 1]), 1e-9)[:, None]
-        sigma = np.stack([rng**2 * self._k_along, rng * self._k_across], axis=1)
-        h = self.camera.mount.height
-        # Built on the per-frame path from arrays made right here: skip pydantic's validation pass.
-        return ProjectedHits.model_construct(points=pts, ray_dirs=ray, sigma=sigma, view_dirs=view, range_m=rng,
-                             cpoints=pts[:, 0] + 1j * pts[:, 1], cray=ray[:, 0] + 1j * ray[:, 1],
-                             cview=view[:, 0] + 1j * view[:, 1],
-                             depression=np.arctan2(h, rng),
-                             tan_azimuth=np.clip(view[:, 1] / np.maximum(view[:, 0], 1e-3), -3.0, 3.0),
-                             camera_xy=complex(*self._cam_xy), camera_height=h)
+        packed[:, 2:4] = ray
+        packed[:, 4] = rng**2 * self._k_along
+        packed[:, 5] = rng * self._k_across
+        packed[:, 6:8] = view
+        packed[:, 8] = rng
+        packed[:, 9] = np.arctan2(self.camera.mount.height, rng)
+        packed[:, 10] = np.clip(view[:, 1] / np.maximum(view[:, 0], 1e-3), -3.0, 3.0)
+        return ProjectedHits(packed, self._camera_xy, self.camera.mount.height)
+
+    def from_table(self, table: np.ndarray, hits: np.ndarray) -> ProjectedHits:
+        """`from_points` of int16 (N, 4) hits (row, col, ...) looked up in a floor table (build_floor_table's
+        layout) in one compiled call; the numpy lookup + `from_points` when the kernel is not built."""
+        if _fit_kernel is None:
+            return self.from_points(lookup_table(table, self.camera.width, self.camera.height, hits[:, 0], hits[:, 1]))
+        packed = np.empty((len(hits), PACKED_COLUMNS))
+        mount = self.camera.mount
+        n = _fit_kernel.hit_geometry(table, self.camera.height, self.camera.width, hits, mount.x, mount.y,
+                                     mount.height, float(self.origin_floor[0]), float(self.origin_floor[1]),
+                                     self._k_along, self._k_across, packed)
+        return ProjectedHits(packed[:n], self._camera_xy, mount.height)
+
+
+def lookup_table(table: np.ndarray, width: int, height: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(N, 2) floor points of integer pixels; NaN for pixels outside the image or seeing no floor."""
+    r = np.rint(np.asarray(rows)).astype(np.int64)
+    c = np.rint(np.asarray(cols)).astype(np.int64)
+    inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
+    out = np.full((len(r), 2), np.nan, np.float32)
+    out[inside] = table[r[inside] * width + c[inside]]
+    return out
 
 
 class FloorProjector:
@@ -103,12 +179,7 @@ class FloorProjector:
 
     def lookup(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """(N, 2) floor points of integer pixels; NaN for pixels outside the image or seeing no floor."""
-        r = np.rint(np.asarray(rows)).astype(np.int64)
-        c = np.rint(np.asarray(cols)).astype(np.int64)
-        inside = (r >= 0) & (r < self.camera.height) & (c >= 0) & (c < self.camera.width)
-        out = np.full((len(r), 2), np.nan, np.float32)
-        out[inside] = self.table[r[inside] * self.camera.width + c[inside]]
-        return out
+        return lookup_table(self.table, self.camera.width, self.camera.height, rows, cols)
 
     def project(self, rows: np.ndarray, cols: np.ndarray) -> ProjectedHits:
         return self.geometry.from_points(self.lookup(rows, cols))
