@@ -7,6 +7,7 @@ decoding with per-topic rejection counts, a health message every second, and SIG
 """
 from __future__ import annotations
 
+import gc
 import logging
 import signal
 import threading
@@ -125,6 +126,9 @@ class Service:
         # Alive means ready: the token appears only once the stage can take inputs (model loaded,
         # subscribers declared), so whoever waits on it never publishes into the void.
         token = zsession.liveliness().declare_token(liveliness_key(self.robot_id, self.name))
+        # Everything allocated so far (model, tables, court field) lives as long as the process: moving it
+        # out of the collector's reach keeps full collections from walking it during frames.
+        gc.freeze()
         worker = threading.Thread(target=self._work, name=f"{self.name}-worker", daemon=True)
         health = threading.Thread(target=self._health_loop, name=f"{self.name}-health", daemon=True)
         worker.start()
