@@ -30,7 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     cross.add_argument("--step", type=int, default=1, help="use every step-th frame")
     cross.add_argument("--cold-step", type=int, default=20, help="cold-start pass on every k-th test frame")
     cross.add_argument("--json", type=Path, required=True)
-    cross.add_argument("--config-out", type=Path, help="write the config both directions agree on (else the first)")
+    cross.add_argument("--config-out", type=Path,
+                       help="write the first direction's tuned config (LocalizerConfig JSON)")
     cross.set_defaults(func=_crosseval)
 
 
@@ -56,8 +57,9 @@ def _build(args: argparse.Namespace) -> int:
             metrics[f"cold_start_{d['tested_on']}"] = {k: float(v) for k, v in d["cold_start"]["all"].items()}
         data = TrainingData(fingerprint=report.get("fingerprint", ""), recordings=report["recordings"],
                             n_frames=int(report.get("n_frames", 0)),
-                            description="no learned weights: edge offset and hit noise tuned per recording "
-                                        "(see README); court and camera from the digital twin")
+                            description="no learned weights: edge offset, hit noise, tilt prior, range error "
+                                        "and the tracker's motion noise tuned per recording (see README); "
+                                        "court and camera from the digital twin")
     manifest = build_package(args.out, court, camera, config, args.name, args.version, metrics, data)
     (args.out / "README.md").write_text(markdown_report(manifest, config, report))
     print(json.dumps({"out": str(args.out), "name": manifest.name, "weights_sha256": manifest.weights_sha256}))
@@ -65,7 +67,7 @@ def _build(args: argparse.Namespace) -> int:
 
 
 def _crosseval(args: argparse.Namespace) -> int:
-    from courtloc.localizer.seed_eval import cross_recording, load_seed_frames
+    from courtloc.localizer.seed_eval import apply_settings, cross_recording, load_seed_frames
     from courtloc.sim.camera import load_camera
     from courtloc.sim.court import load_court
 
@@ -78,11 +80,7 @@ def _crosseval(args: argparse.Namespace) -> int:
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=1))
     if args.config_out:
-        chosen = [d["chosen"] for d in report["directions"]]
-        cfg = base.model_copy(deep=True)
-        cfg.edge_offset_px = chosen[0]["edge_offset_px"]
-        cfg.fit.pixel_sigma = chosen[0]["pixel_sigma"]
-        cfg.fit.tilt_sigma_deg = chosen[0]["tilt_sigma_deg"]
+        cfg = apply_settings(base, report["directions"][0]["chosen"])
         args.config_out.write_text(cfg.model_dump_json(indent=1))
     for d in report["directions"]:
         t, c = d["tracking"]["all"], d["cold_start"]["all"]

@@ -50,6 +50,30 @@ class SearchConfig(BaseModel):
     area_margin_m: float = Field(0.0, description="search |x|,|y| up to the court's robot area + this")
 
 
+class MotionConfig(BaseModel):
+    """Constant-velocity Kalman filter of the tracker (motion.py). crosseval tunes `measurement_scale`
+    and `accel_sigma_mps2` by tracking the tuning recording; these defaults are what its first stage
+    (the fit settings) tracks with, the package carries the tuned values."""
+
+    model_config = ConfigDict(extra="forbid")
+    accel_sigma_mps2: float = Field(1.0, gt=0,
+                                    description="white-noise acceleration (spectral density sqrt), x and y")
+    yaw_accel_sigma_dps2: float = Field(60.0, gt=0, description="the same for yaw, degrees")
+    measurement_scale: float = Field(2.0, gt=0, description="the fit's covariance std is multiplied by this")
+    floor_position_m: float = Field(0.005, ge=0, description="added to the fit's position std (per axis)")
+    floor_yaw_deg: float = Field(0.05, ge=0, description="added to the fit's yaw std")
+    initial_speed_mps: float = Field(1.0, gt=0, description="velocity std of a new track")
+    initial_yaw_rate_dps: float = Field(60.0, gt=0, description="yaw-rate std of a new track")
+    gate_chi2: float = Field(25.0, gt=0,
+                             description="innovation chi-square (3 dof) above which a fit is not fused")
+    velocity_tau_s: float = Field(1.0, ge=0, description="predicted velocity decays with this time constant "
+                                  "(0: constant velocity)")
+    max_lost_frames: int = Field(10, ge=0, description="frames without a usable fit before the court is searched "
+                                 "again (the last pose still picks the symmetry twin)")
+    max_gap_s: float = Field(1.0, gt=0, description="a longer gap between frames also searches the court again")
+    frame_period_s: float = Field(0.085, gt=0, description="assumed time between frames that carry no time")
+
+
 class LocalizerConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     field_resolution_m: float = Field(0.01, gt=0, le=0.05)
@@ -63,5 +87,6 @@ class LocalizerConfig(BaseModel):
                                         "(0: one start)")
     track_max_jump_m: float = Field(0.5, gt=0, description="a tracked pose moving more than this is re-checked")
     fit: FitConfig = FitConfig()
+    motion: MotionConfig = MotionConfig()
     quality: QualityConfig = QualityConfig()
     search: SearchConfig = SearchConfig()

@@ -1,10 +1,14 @@
 """The geometric localizer: floor points of a frame's hits -> court pose (x, y, yaw) with a quality.
 
-Tracking when a previous pose is given: one robust fit from it, accepted when valid and it did not jump;
-else a few restarts nearby; a frame that still fails is returned invalid (no global jump). Without a
-previous pose, a global search (search.py) proposes candidates, each is refined, the best robust cost
-wins. The symmetry rule (symmetry.py) then picks between the answer and its mirror twin.
-Stateless: the caller passes the previous pose, so one instance can serve any number of robots.
+Per frame (`localize`): with a previous pose, robust fits from it (and turned either side), accepted
+when valid and it did not jump; else a few restarts nearby; a frame that still fails is returned
+invalid (no global jump). Without a previous pose, a global search (search.py) proposes candidates,
+each is refined, the best robust cost wins. The symmetry rule (symmetry.py) then picks between the
+answer and its mirror twin.
+Over frames (`track`): the motion filter (motion.py) predicts the frame from the past ones, the fit
+starts from that prediction, and the answer is the fit fused with the prediction.
+Stateless: the caller passes the previous pose (or motion state), so one instance can serve any
+number of robots.
 """
 from __future__ import annotations
 
@@ -13,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from courtloc.localizer import motion
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.fit import FitResult, fit_pose, fit_poses
@@ -46,8 +51,18 @@ class LocalizeResult:
     @property
     def trackable(self) -> bool:
         """Good enough to start the next frame from, even if not valid: a degenerate frame (only parallel
-        lines) still pins yaw and one direction, and the free direction stays where tracking left it."""
+        lines) still pins yaw and one direction. With the motion filter (`track`) such a frame is fused:
+        its covariance leaves the free direction to the prediction."""
         return self.fit.valid or (self.mode == "track" and self.fit.n_inliers >= 12 and self.fit.inlier_ratio >= 0.5)
+
+
+@dataclass(frozen=True)
+class TrackStep:
+    """One tracked frame: the answer (`result.pose` fused; `result.fit.pose` the frame's own fit) and
+    the motion state to pass with the next frame (None: no track yet, the next frame searches the court)."""
+
+    result: LocalizeResult
+    state: motion.MotionState | None
 
 
 class GeometricLocalizer:
@@ -68,8 +83,10 @@ class GeometricLocalizer:
         """Pose from (N, 2) robot-frame floor points (NaN rows ignored)."""
         return self.localize(self.geometry.from_points(floor_points), previous)
 
-    def localize(self, hits: ProjectedHits, previous: np.ndarray | None = None) -> LocalizeResult:
-        """With `previous`: track (never a global jump); without: global search."""
+    def localize(self, hits: ProjectedHits, previous: np.ndarray | None = None,
+                 hint: np.ndarray | None = None) -> LocalizeResult:
+        """With `previous`: track (never a global jump); without: global search, and the symmetry twin
+        nearer `hint` (a lost track's last pose) unless the mode is 'half' or there is no hint."""
         cfg = self.config
         if previous is not None:
             prev = np.asarray(previous, np.float64)
@@ -81,7 +98,39 @@ class GeometricLocalizer:
                 best = res
         if best is None:  # no hits at all
             best = fit_pose(self.field, hits, np.zeros(3), cfg.fit, cfg.quality)
-        return self._finish(best, "global", None)
+        return self._finish(best, "global", None if hint is None else np.asarray(hint, np.float64))
+
+    def track(self, hits: ProjectedHits, state: motion.MotionState | None, t: float | None = None) -> TrackStep:
+        """One frame of a track at time t (seconds; None: frames `motion.frame_period_s` apart).
+
+        The fit starts from the state's prediction and is fused with it by covariance; a frame
+        without a usable fit answers the prediction (invalid). The reset rules are motion.py's.
+        """
+        mcfg = self.config.motion
+        if state is None or motion.is_lost(state, t, mcfg):
+            res = self.localize(hits, None, hint=None if state is None else state.pose)
+            if res.valid:
+                return TrackStep(res, motion.start(res.pose, res.fit.covariance, t, mcfg))
+            return TrackStep(res, None if state is None else motion.coast(state, mcfg))
+        pred = motion.predict(state, t, mcfg)
+        res = self.localize(hits, pred.pose)
+        r = motion.measurement_cov(res.fit.covariance, mcfg)
+        if (res.valid or res.trackable) and r is not None:
+            _, _, chi2 = motion.innovation(pred, res.pose, r)
+            if chi2 <= mcfg.gate_chi2:
+                new = motion.update(pred, res.pose, r)
+                return TrackStep(self._answer(res, new.pose), new)
+            if res.valid:  # the evidence disagrees with the track: restart the track there
+                return TrackStep(res, motion.start(res.pose, res.fit.covariance, t, mcfg))
+        return TrackStep(self._answer(res, pred.pose, invalid=True), motion.coast(pred, mcfg))
+
+    def _answer(self, res: LocalizeResult, pose: np.ndarray, invalid: bool = False) -> LocalizeResult:
+        """`res` answering `pose` instead of its fit's pose (the fit stays, for its diagnostics)."""
+        fit = res.fit
+        if invalid:
+            fit = FitResult(**{**fit.__dict__, "valid": False, "quality": min(fit.quality, 0.49)})
+        alternatives = [mirror(pose)] if self.config.symmetry == "both" else []
+        return LocalizeResult(pose=pose, fit=fit, mode=res.mode, alternatives=alternatives)
 
     def _track(self, hits: ProjectedHits, prev: np.ndarray) -> FitResult:
         """Fit from the previous pose; if that fails, a few nearby starts (the robot cannot teleport).
@@ -93,12 +142,14 @@ class GeometricLocalizer:
         cfg = self.config
         # The basin of the right alignment can be narrower than a frame's turn: also start turned by
         # +-track_yaw_starts_rad and keep the lowest robust cost (all starts run in one batched fit).
+        # Cost, not validity, decides: validity is a threshold on the stds, and a valid start with twice
+        # the cost of an invalid one is the worse fit of the same hits (a rendered twin frame: 30 cm off).
         dyaw = cfg.track_yaw_starts_rad
         starts = [prev] + ([prev + (0.0, 0.0, dyaw), prev + (0.0, 0.0, -dyaw)] if dyaw > 0 else [])
         fits = self._fit_starts(hits, np.array(starts))
         first = fits[0]
         for other in fits[1:]:
-            if (other.valid, -other.cost) > (first.valid, -first.cost):
+            if other.cost < first.cost:
                 first = other
         if first.valid and math.hypot(*(first.pose[:2] - prev[:2])) <= cfg.track_max_jump_m:
             return first

@@ -19,10 +19,15 @@ def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | 
         "per-pixel table); numpy then fits x, y, yaw to the court's distance field (robust Gauss-Newton, "
         "global search when not tracking). Design: docs/localizer.md.",
         "",
-        f"Config: edge offset {config.edge_offset_px} px, hit noise {config.fit.pixel_sigma} px, symmetry "
-        f"'{config.symmetry}' (half {config.half}). Weights sha256 `{manifest.weights_sha256[:16]}...`.",
+        f"Config: edge offset {config.edge_offset_px} px, hit noise {config.fit.pixel_sigma} px, tilt prior "
+        f"{config.fit.tilt_sigma_deg} deg, model error {config.fit.range_sigma} m per m of range, symmetry "
+        f"'{config.symmetry}' (half {config.half}); tracking motion filter: fit covariance x "
+        f"{config.motion.measurement_scale}, acceleration noise {config.motion.accel_sigma_mps2} m/s^2, "
+        f"velocity decay {config.motion.velocity_tau_s} s. Weights sha256 `{manifest.weights_sha256[:16]}...`.",
         "",
-        "Load: `courtloc.localizer.predictor.load_predictor(<this folder>)`.",
+        "Load: `courtloc.localizer.predictor.load_predictor(<this folder>)`. Its `predict(previous=...)` "
+        "tracks frame by frame; the motion filter of the tracking numbers below is "
+        "`GeometricLocalizer.track` (the caller passes its state).",
         "",
     ]
     if not report:
@@ -40,10 +45,11 @@ def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | 
         *([report["build_command"]] if report.get("build_command") else []),
         "```",
         "",
-        "Tuned on one recording (edge offset, hit noise: grid, fits from the previous frame's label), "
-        "tested on the other: *tracking* = every frame in time order from the previous valid answer (global "
-        "search when there is none); *cold start* = global search alone on every k-th frame, no previous "
-        "pose, symmetry by the configured half.",
+        "Tuned on one recording (edge offset, hit noise, tilt prior, then the motion filter's noise: small "
+        "grids, each scored by tracking the whole tuning recording; lowest p95 wins), tested on the other: "
+        "*tracking* = every frame in time order with the motion filter (prediction from the past frames, "
+        "fused with the frame's fit by covariance; global search when there is no track); *cold start* = "
+        "global search alone on every k-th frame, no previous pose, symmetry by the configured half.",
         "",
         "| run | n | mean cm | median cm | p95 cm | yaw median deg | notes |",
         "|---|---|---|---|---|---|---|",

@@ -1,0 +1,143 @@
+"""Motion model of the tracker: a constant-velocity Kalman filter on (x, y, yaw, vx, vy, yaw rate).
+
+Why: a frame's fit is precise across the lines it sees and weak along them (its 3x3 covariance says
+which way), and its errors persist for several frames while the view stays the same. The filter
+predicts each frame from the past ones (the start pose of the fit: fewer wrong basins after a turn)
+and fuses the fit with that prediction by their covariances, so in a frame's weak direction the
+prediction dominates and in its strong directions the fit does.
+
+Everything here is a pure function of the state the caller passes in (`MotionState`), like the rest of
+the localizer: the caller keeps the state between frames (`GeometricLocalizer.track`). Causal: a state
+only ever holds past frames. The rules, explicit:
+- no state -> the frame is a global search; a valid answer starts a state, velocity unknown;
+- a fit that is valid or trackable and agrees with the prediction (innovation chi-square, 3 dof, at
+  most `gate_chi2`) updates the state; a degenerate fit's huge covariance in its free direction leaves
+  that direction to the prediction;
+- a valid fit that disagrees restarts the state at the fit (the fit is the evidence; a filter that is
+  wrong would otherwise never let go); a trackable but invalid one that disagrees is ignored;
+- a frame without a usable fit answers the prediction (invalid) and counts as lost; after
+  `max_lost_frames` lost frames in a row, or a gap over `max_gap_s`, the next frame is a global search
+  again, and the lost state's pose only picks the symmetry twin (a global search near the centre
+  cannot tell the twins apart by position).
+The velocity decays with `velocity_tau_s` in the prediction: a robot that stops while the view is
+degenerate must not be extrapolated on along the free direction.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from courtloc.localizer.config import MotionConfig
+
+
+@dataclass(frozen=True)
+class MotionState:
+    mean: np.ndarray  # (6,) x, y m, yaw rad (wrapped), vx, vy m/s, yaw rate rad/s
+    cov: np.ndarray  # (6, 6)
+    t: float | None  # time of `mean` in seconds (None: frames without times, cfg.frame_period_s apart)
+    lost: int = 0  # frames in a row without a usable fit
+
+    @property
+    def pose(self) -> np.ndarray:
+        return self.mean[:3].copy()
+
+    @property
+    def position_std_m(self) -> float:
+        """Worst-direction position std of the state."""
+        return math.sqrt(max(float(np.linalg.eigvalsh(self.cov[:2, :2])[-1]), 0.0))
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def measurement_cov(fit_cov: np.ndarray | None, cfg: MotionConfig) -> np.ndarray | None:
+    """The fit's (x, y, yaw) covariance as the filter's measurement noise: scaled (the fit's model
+    assumes independent pixel noise, while its real errors are larger and shared by neighbouring hits)
+    plus a floor (court model and label-free systematic errors)."""
+    if fit_cov is None or not np.all(np.isfinite(fit_cov)):
+        return None
+    r = cfg.measurement_scale ** 2 * np.asarray(fit_cov, np.float64)
+    r = 0.5 * (r + r.T)
+    r[0, 0] += cfg.floor_position_m ** 2
+    r[1, 1] += cfg.floor_position_m ** 2
+    r[2, 2] += math.radians(cfg.floor_yaw_deg) ** 2
+    return r
+
+
+def start(pose: np.ndarray, fit_cov: np.ndarray | None, t: float | None, cfg: MotionConfig) -> MotionState:
+    """A new state at a pose, its velocity unknown (`initial_speed_mps`, `initial_yaw_rate_dps` std)."""
+    cov = np.zeros((6, 6))
+    r = measurement_cov(fit_cov, cfg)
+    cov[:3, :3] = r if r is not None else np.diag([0.1, 0.1, math.radians(2.0)]) ** 2
+    cov[3, 3] = cov[4, 4] = cfg.initial_speed_mps ** 2
+    cov[5, 5] = math.radians(cfg.initial_yaw_rate_dps) ** 2
+    mean = np.zeros(6)
+    mean[:3] = pose
+    mean[2] = _wrap(mean[2])
+    return MotionState(mean=mean, cov=cov, t=t, lost=0)
+
+
+def elapsed(state: MotionState, t: float | None, cfg: MotionConfig) -> float:
+    if t is None or state.t is None:
+        return cfg.frame_period_s
+    return max(t - state.t, 0.0)
+
+
+def predict(state: MotionState, t: float | None, cfg: MotionConfig) -> MotionState:
+    """The state advanced to time t at constant velocity; white-noise acceleration widens it."""
+    dt = elapsed(state, t, cfg)
+    f = np.eye(6)
+    f[0, 3] = f[1, 4] = f[2, 5] = dt
+    if cfg.velocity_tau_s > 0:
+        # The velocity relaxes towards zero (a stopping robot is not extrapolated on); the position
+        # integrates the decaying velocity. The process noise keeps the constant-velocity form.
+        decay = math.exp(-dt / cfg.velocity_tau_s)
+        f[0, 3] = f[1, 4] = f[2, 5] = cfg.velocity_tau_s * (1 - decay)
+        f[3, 3] = f[4, 4] = f[5, 5] = decay
+    mean = f @ state.mean
+    mean[2] = _wrap(mean[2])
+    q = np.zeros((6, 6))
+    for i, sigma in ((0, cfg.accel_sigma_mps2), (1, cfg.accel_sigma_mps2), (2, math.radians(cfg.yaw_accel_sigma_dps2))):
+        s2 = sigma * sigma
+        # Spectral density s2 of the acceleration over dt: the standard continuous white-noise terms.
+        q[i, i] = s2 * dt ** 3 / 3.0
+        q[i, i + 3] = q[i + 3, i] = s2 * dt ** 2 / 2.0
+        q[i + 3, i + 3] = s2 * dt
+    cov = f @ state.cov @ f.T + q
+    return MotionState(mean=mean, cov=cov, t=t, lost=state.lost)
+
+
+def innovation(state: MotionState, pose: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """(innovation, its covariance, chi-square) of a measured pose against a predicted state."""
+    nu = np.asarray(pose, np.float64)[:3] - state.mean[:3]
+    nu[2] = _wrap(nu[2])
+    s = state.cov[:3, :3] + r
+    chi2 = float(nu @ np.linalg.solve(s, nu))
+    return nu, s, chi2
+
+
+def update(state: MotionState, pose: np.ndarray, r: np.ndarray) -> MotionState:
+    """Kalman update with a measured (x, y, yaw) of covariance r (Joseph form: stays symmetric PSD)."""
+    nu, s, _ = innovation(state, pose, r)
+    h = np.zeros((3, 6))
+    h[:, :3] = np.eye(3)
+    gain = np.linalg.solve(s, h @ state.cov).T  # P H^T S^-1 (S symmetric)
+    mean = state.mean + gain @ nu
+    mean[2] = _wrap(mean[2])
+    ikh = np.eye(6) - gain @ h
+    cov = ikh @ state.cov @ ikh.T + gain @ r @ gain.T
+    return MotionState(mean=mean, cov=0.5 * (cov + cov.T), t=state.t, lost=0)
+
+
+def coast(state: MotionState, cfg: MotionConfig) -> MotionState:
+    """A frame without a usable fit: keep the prediction, count the frame as lost."""
+    return MotionState(mean=state.mean, cov=state.cov, t=state.t, lost=state.lost + 1)
+
+
+def is_lost(state: MotionState, t: float | None, cfg: MotionConfig) -> bool:
+    """Too many frames without a usable fit, or too long a gap: the position prior is no longer trusted
+    (the caller searches the court; the state's pose still tells the symmetry twins apart)."""
+    return state.lost >= cfg.max_lost_frames or elapsed(state, t, cfg) > cfg.max_gap_s

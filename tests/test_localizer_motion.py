@@ -1,0 +1,136 @@
+"""The tracker's motion filter: covariance-weighted fusion, constant-velocity prediction, the reset
+rules, and symmetry through a track (synthetic poses; twin frames for the localizer-level rules)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from courtloc.localizer import motion
+from courtloc.localizer.config import LocalizerConfig, MotionConfig
+from courtloc.localizer.geometric import GeometricLocalizer
+from courtloc.localizer.projection import FloorProjector
+from courtloc.localizer.symmetry import mirror
+from courtloc.sim.camera import load_camera
+from courtloc.sim.court import load_court
+
+CFG = MotionConfig()
+
+
+def _yaw_err(a: float, b: float) -> float:
+    return abs(math.remainder(a - b, 2 * math.pi))
+
+
+def _state(pose, t=0.0, pos_std=0.05, yaw_std_deg=0.5) -> motion.MotionState:
+    cov = np.diag([pos_std ** 2, pos_std ** 2, math.radians(yaw_std_deg) ** 2])
+    return motion.start(np.array(pose, float), cov, t, CFG)
+
+
+def test_degenerate_direction_does_not_move_the_estimate_along_it() -> None:
+    # Only lines along x seen: the fit pins y (and yaw) and knows nothing about x.
+    state = motion.predict(_state([1.0, 2.0, 0.3]), 0.1, CFG)
+    fit_cov = np.diag([1e6, 0.02 ** 2, math.radians(0.3) ** 2])
+    measured = np.array([1.6, 2.04, 0.3])  # 0.6 m off along the free direction, 4 cm across it
+    r = motion.measurement_cov(fit_cov, CFG)
+    new = motion.update(state, measured, r)
+    assert abs(new.mean[0] - state.mean[0]) < 1e-3, "the free direction stays with the prediction"
+    assert abs(new.mean[1] - 2.04) < abs(state.mean[1] - 2.04) - 0.01, "the constrained direction moves"
+    # A rotated degenerate direction (lines along 45 degrees) behaves the same way.
+    u = np.array([math.cos(math.pi / 4), math.sin(math.pi / 4)])
+    fit_cov = np.zeros((3, 3))
+    fit_cov[:2, :2] = 1e6 * np.outer(u, u) + 0.02 ** 2 * np.eye(2)
+    fit_cov[2, 2] = math.radians(0.3) ** 2
+    new = motion.update(state, np.r_[state.mean[:2] + 0.5 * u, 0.3], motion.measurement_cov(fit_cov, CFG))
+    assert abs(float((new.mean[:2] - state.mean[:2]) @ u)) < 1e-3
+
+
+def test_a_precise_fit_dominates_and_the_covariance_shrinks() -> None:
+    state = motion.predict(_state([0.0, 0.0, 0.0], pos_std=0.2), 0.1, CFG)
+    r = motion.measurement_cov(np.diag([1e-4, 1e-4, 1e-6]), CFG)
+    new = motion.update(state, np.array([0.1, -0.1, 0.01]), r)
+    assert np.allclose(new.mean[:2], [0.1, -0.1], atol=0.01)
+    assert new.position_std_m < state.position_std_m
+    assert np.allclose(new.cov, new.cov.T) and np.all(np.linalg.eigvalsh(new.cov) > 0)
+
+
+def test_constant_velocity_prediction_from_past_frames() -> None:
+    # 0.6 m/s along +y, turning at 0.5 rad/s, frames 0.08 s apart with precise fits.
+    r = motion.measurement_cov(np.diag([1e-6, 1e-6, 1e-8]), CFG)
+    state = _state([0.0, 0.0, 0.0])
+    for k in range(1, 15):
+        t = 0.08 * k
+        state = motion.update(motion.predict(state, t, CFG), np.array([0.0, 0.6 * t, 0.5 * t]), r)
+    ahead = motion.predict(state, 0.08 * 15, CFG)
+    assert abs(ahead.mean[1] - 0.6 * 1.2) < 0.01, "predicted from the velocity, not the last pose"
+    assert _yaw_err(ahead.mean[2], 0.6) < math.radians(0.5)
+    assert ahead.position_std_m > state.position_std_m, "the prediction is less certain than the state"
+
+
+def test_yaw_wraps_through_pi() -> None:
+    state = _state([0.0, 0.0, math.pi - 0.01])
+    r = motion.measurement_cov(np.diag([1e-4, 1e-4, math.radians(0.5) ** 2]), CFG)
+    new = motion.update(motion.predict(state, 0.1, CFG), np.array([0.0, 0.0, -math.pi + 0.01]), r)
+    assert _yaw_err(new.mean[2], math.pi) < 0.02, new.mean[2]  # not averaged to 0
+    assert -math.pi < new.mean[2] <= math.pi
+
+
+def test_lost_after_max_frames_or_a_long_gap() -> None:
+    cfg = MotionConfig(max_lost_frames=3, max_gap_s=0.5)
+    state = _state([1.0, 1.0, 0.0])
+    for k in range(3):
+        assert not motion.is_lost(state, 0.1 * k, cfg)
+        state = motion.coast(motion.predict(state, 0.1 * (k + 1), cfg), cfg)
+    assert motion.is_lost(state, 0.4, cfg)
+    assert motion.is_lost(_state([1.0, 1.0, 0.0], t=0.0), 0.6, cfg), "a gap over max_gap_s"
+    assert not motion.is_lost(_state([1.0, 1.0, 0.0], t=0.0), 0.4, cfg)
+
+
+# ---- the rules through GeometricLocalizer.track, on rendered twin frames -----------------------------
+
+POSE = (-1.0, -2.0, 0.5)  # in the -x half: a global search in "+x" mode alone would answer its mirror
+
+
+@pytest.fixture(scope="module")
+def setup():
+    from courtloc.sim.edges import scan_hits
+    from courtloc.sim.render import Renderer
+
+    court, camera = load_court("seed-gazebo"), load_camera("seed-gazebo")
+    cfg = LocalizerConfig(motion=MotionConfig(max_lost_frames=3))
+    loc = GeometricLocalizer(court, camera, cfg)
+    hits = scan_hits(Renderer(court, camera).render(POSE))
+    projector = FloorProjector(camera, cfg.edge_offset_px, cfg.max_range_m)
+    return loc, projector.project(hits[:, 0], hits[:, 1]), projector.project(hits[:0, 0], hits[:0, 1])
+
+
+def _close(pose, ref, tol=0.05) -> bool:
+    return math.hypot(pose[0] - ref[0], pose[1] - ref[1]) < tol and _yaw_err(pose[2], ref[2]) < 0.02
+
+
+def test_track_follows_and_resets_after_lost_frames(setup) -> None:
+    loc, frame, empty = setup
+    start = motion.start(np.array(POSE) + [0.05, -0.03, 0.01], None, 0.0, loc.config.motion)
+    step = loc.track(frame, start, 0.08)
+    assert step.result.mode == "track" and step.result.valid and _close(step.result.pose, POSE)
+    state = step.state
+    for k in range(3):  # no hits: the answer is the prediction, invalid, and the frame counts as lost
+        t = 0.16 + 0.08 * k
+        step = loc.track(empty, state, t)
+        assert not step.result.valid and step.result.mode == "track"
+        assert np.allclose(step.result.pose, motion.predict(state, t, loc.config.motion).pose)
+        state = step.state
+    assert state.lost == 3 and motion.is_lost(state, 0.5, loc.config.motion)
+    # Lost: the court is searched again, and the lost track's pose picks the twin (not the "+x" half).
+    step = loc.track(frame, state, 0.5)
+    assert step.result.mode == "global" and step.result.valid
+    assert _close(step.result.pose, POSE), step.result.pose
+    assert step.state is not None and step.state.lost == 0
+    assert _close(loc.track(frame, None, 0.0).result.pose, mirror(np.array(POSE))), "no track: the half rule"
+
+
+def test_track_keeps_the_twin_of_the_state(setup) -> None:
+    loc, frame, _ = setup
+    twin = mirror(np.array(POSE))
+    step = loc.track(frame, motion.start(twin + [0.04, 0.02, -0.01], None, 0.0, loc.config.motion), 0.08)
+    assert step.result.valid and _close(step.result.pose, twin), "the same paint, seen from the mirror pose"
