@@ -8,7 +8,9 @@ run, interleaved frame by frame so that the ratio holds on a noisy machine: the 
 table lookup + geometry + the whole fit in C, what runs when the kernel is built) and the numpy reference
 (onnxruntime + numpy, the fallback without a compiler). One onnxruntime thread; pin the process to one
 core (taskset -c 0) to measure "one CPU core". `--compare-sequential` also times the path that fits a
-frame's starts one at a time (the pre-batching tracking path).
+frame's starts one at a time (the pre-batching tracking path). `tracking_filtered` times what the infer
+stage runs per frame: `GeometricPredictor.track`, the same fit from the motion filter's prediction plus the
+filter's predict and update (a state started at the perturbed pose one frame period earlier).
 """
 from __future__ import annotations
 
@@ -80,7 +82,11 @@ def run(args: argparse.Namespace) -> int:
 
         loc = predictor.localizer
         sequential = GeometricLocalizer(loc.court, loc.camera, loc.config, field=loc.field, batch_starts=False)
-    ms: dict[str, list[float]] = {k: [] for k in ("track", "track_numpy", "cold", "cold_numpy", "onnx", "seq")}
+    from courtloc.localizer import motion
+
+    motion_cfg = predictor.localizer.config.motion
+    ms: dict[str, list[float]] = {k: [] for k in ("track", "track_numpy", "cold", "cold_numpy", "onnx", "seq",
+                                                 "filtered")}
     errors, path_diff, seq_diff = [], [], []
 
     def numpy_predict(*a, **kw):
@@ -100,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
                 t, ref = _timed(lambda: numpy_predict(hits, w, h, previous=start))
                 ms["track_numpy"].append(t)
                 path_diff.append(max(abs(ref.x - pred.x), abs(ref.y - pred.y)))
+            state = motion.start(start, None, 0.0, motion_cfg)
+            ms["filtered"].append(_timed(lambda: predictor.track(hits, w, h, state, motion_cfg.frame_period_s))[0])
             ms["onnx"].append(_timed(lambda: predictor.floor_points(hits))[0])
             if sequential is not None:
                 t, res = _timed(lambda: sequential.localize(predictor.projected_hits(hits), start))
@@ -116,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
         "bench": "localize", "package": str(package), "frames": len(frames),
         "hits_per_frame_median": float(np.median([len(f[1]) for f in frames])),
         "compiled_kernel": compiled,
-        "tracking": _stats(ms["track"]), "cold_start": _stats(ms["cold"]),
+        "tracking": _stats(ms["track"]), "tracking_filtered": _stats(ms["filtered"]), "cold_start": _stats(ms["cold"]),
         "onnx_hits_to_floor": _stats(ms["onnx"]),
         "tracking_error_median_m": float(np.median(errors)),
     }

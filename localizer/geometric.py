@@ -116,9 +116,9 @@ class GeometricLocalizer:
         res = self.localize(hits, pred.pose)
         r = motion.measurement_cov(res.fit.covariance, mcfg)
         if (res.valid or res.trackable) and r is not None:
-            _, _, chi2 = motion.innovation(pred, res.pose, r)
-            if chi2 <= mcfg.gate_chi2:
-                new = motion.update(pred, res.pose, r)
+            innov = motion.innovation(pred, res.pose, r)
+            if innov.chi2 <= mcfg.gate_chi2:
+                new = motion.update(pred, res.pose, r, innov)
                 return TrackStep(self._answer(res, new.pose), new)
             if res.valid:  # the evidence disagrees with the track: restart the track there
                 return TrackStep(res, motion.start(res.pose, res.fit.covariance, t, mcfg))

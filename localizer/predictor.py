@@ -121,17 +121,32 @@ class GeometricPredictor:
             return self.localizer.geometry.from_table(self.floor_table, _as_hits(hits))
         return self.localizer.geometry.from_points(self.floor_points(hits))
 
-    def predict(self, hits: np.ndarray, width: int, height: int,
-                previous: Optional[Prediction | Sequence[float]] = None) -> Prediction:
+    def _check_size(self, width: int, height: int) -> None:
         if (width, height) != (self.width, self.height):
             raise ValueError(f"frame {width}x{height} does not match the package camera {self.width}x{self.height}")
-        res = self.localizer.localize(self.projected_hits(hits), _previous_pose(previous))
-        x, y, yaw = (float(v) for v in res.pose)
-        return Prediction(x=x, y=y, yaw=yaw, quality=res.quality, valid=res.valid, mode=res.mode,
-                          n_hits=res.fit.n_hits, n_inliers=res.fit.n_inliers,
-                          position_std_m=res.fit.position_std_m if math.isfinite(res.fit.position_std_m) else None,
-                          alternatives=[tuple(float(v) for v in a) for a in res.alternatives],
-                          trackable=res.trackable)
+
+    def predict(self, hits: np.ndarray, width: int, height: int,
+                previous: Optional[Prediction | Sequence[float]] = None) -> Prediction:
+        self._check_size(width, height)
+        return _prediction(self.localizer.localize(self.projected_hits(hits), _previous_pose(previous)))
+
+    def track(self, hits: np.ndarray, width: int, height: int, state, t: float | None = None):  # noqa: ANN001
+        """One frame of a motion-filtered track (`GeometricLocalizer.track`): (Prediction, next state).
+
+        `state` is what the previous call returned (None to start: the frame is a global search); t is the
+        frame's capture time in seconds on one clock (None: frames a nominal period apart)."""
+        self._check_size(width, height)
+        step = self.localizer.track(self.projected_hits(hits), state, t)
+        return _prediction(step.result), step.state
+
+
+def _prediction(res) -> Prediction:  # noqa: ANN001 - geometric.LocalizeResult
+    x, y, yaw = (float(v) for v in res.pose)
+    return Prediction(x=x, y=y, yaw=yaw, quality=res.quality, valid=res.valid, mode=res.mode,
+                      n_hits=res.fit.n_hits, n_inliers=res.fit.n_inliers,
+                      position_std_m=res.fit.position_std_m if math.isfinite(res.fit.position_std_m) else None,
+                      alternatives=[tuple(float(v) for v in a) for a in res.alternatives],
+                      trackable=res.trackable)
 
 
 class PaperPredictor:

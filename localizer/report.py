@@ -25,9 +25,9 @@ def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | 
         f"{config.motion.measurement_scale}, acceleration noise {config.motion.accel_sigma_mps2} m/s^2, "
         f"velocity decay {config.motion.velocity_tau_s} s. Weights sha256 `{manifest.weights_sha256[:16]}...`.",
         "",
-        "Load: `courtloc.localizer.predictor.load_predictor(<this folder>)`. Its `predict(previous=...)` "
-        "tracks frame by frame; the motion filter of the tracking numbers below is "
-        "`GeometricLocalizer.track` (the caller passes its state).",
+        "Load: `courtloc.localizer.predictor.load_predictor(<this folder>)`. Its `track(hits, width, height, "
+        "state, t)` runs the motion filter of the tracking numbers below (what the infer stage runs); "
+        "`predict(previous=...)` tracks frame by frame without it.",
         "",
     ]
     if not report:

@@ -19,3 +19,11 @@ def test_lost_track_is_dropped_after_the_limit() -> None:
     assert tracker.previous is None, "then the model searches the court again"
     tracker.update(3.0, 1.0, None, valid=True, trackable=True)
     assert tracker.previous is None, "a pose without yaw cannot seed tracking"
+
+
+def test_reset_drops_the_models_motion_state_too() -> None:
+    tracker = Tracker()
+    tracker.update(1.0, 2.0, 0.5, valid=True, trackable=True)
+    tracker.motion = object()  # opaque: whatever the model's `track` returned
+    tracker.reset()
+    assert tracker.previous is None and tracker.motion is None

@@ -51,3 +51,24 @@ def test_file_without_manifest_is_refused(tmp_path):
         load_predictor(bad)
     with pytest.raises(ManifestError):
         load_predictor(tmp_path / "missing")
+
+
+def test_geometric_predictor_tracks_with_the_motion_filter_state() -> None:
+    """What the infer stage runs per frame: the first frame searches, later ones track from the returned state."""
+    from courtloc.localizer.eval import default_model_path
+    from courtloc.localizer.motion import MotionState
+    from tests.infer_models import TwinFrames
+
+    poses = [(1.0, -0.5, 0.3), (1.03, -0.5, 0.31), (1.06, -0.49, 0.32)]
+    frames = TwinFrames(poses)
+    predictor = load_predictor(default_model_path())
+    state = None
+    modes = []
+    for k, (pose, hits) in enumerate(zip(poses, frames.hits)):
+        pred, state = predictor.track(hits, 640, 480, state, t=k / 30)
+        modes.append(pred.mode)
+        assert pred.valid and np.hypot(pred.x - pose[0], pred.y - pose[1]) < 0.05
+        assert isinstance(state, MotionState) and state.t == pytest.approx(k / 30)
+    assert modes == ["global", "track", "track"]
+    with pytest.raises(ValueError, match="does not match"):
+        predictor.track(frames.hits[0], 320, 240, state)

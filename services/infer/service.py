@@ -121,7 +121,13 @@ class InferService(Service):
         if len(hits) == 0:
             reason = "no_hits"
         else:
-            pred = model.predictor.predict(hits, edges.width, edges.height, previous=tracker.previous)
+            track = getattr(model.predictor, "track", None)
+            if track is not None:
+                # Capture times on the camera's monotonic clock: the filter predicts over the real interval.
+                pred, tracker.motion = track(hits, edges.width, edges.height, tracker.motion,
+                                             t=edges.header.capture_mono_ns * 1e-9)
+            else:
+                pred = model.predictor.predict(hits, edges.width, edges.height, previous=tracker.previous)
             x, y, yaw, quality = float(pred.x), float(pred.y), pred.yaw, float(pred.quality)
             tracker.update(x, y, yaw, pred.valid, pred.trackable)
             finite = all(math.isfinite(v) for v in (x, y, *(() if yaw is None else (yaw,))))

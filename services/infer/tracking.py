@@ -4,6 +4,10 @@ A valid pose is kept. A pose that is not valid but still trackable (a degenerate
 lines, the position along them unknown) is kept too, so the tracker rides through it. After too many
 frames without either, the previous pose is dropped and the model searches the court again, so a robot
 that lost track recovers instead of fitting to a stale guess forever.
+
+A model that tracks with a motion filter (the geometric localizer's `track`) keeps its own state in
+`motion`: opaque here, handed back to the model with the next frame, with its own loss rules
+(`localizer/motion.py`). `previous` is still kept, so a swap to a model without a filter tracks on.
 """
 from __future__ import annotations
 
@@ -15,6 +19,7 @@ class Tracker:
     max_lost_frames: int = 10
     previous: tuple[float, float, float] | None = None
     lost_frames: int = 0
+    motion: object | None = None
 
     def update(self, x: float, y: float, yaw: float | None, valid: bool, trackable: bool) -> None:
         if yaw is not None and (valid or trackable):
@@ -28,3 +33,4 @@ class Tracker:
     def reset(self) -> None:
         self.previous = None
         self.lost_frames = 0
+        self.motion = None
