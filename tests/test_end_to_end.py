@@ -76,9 +76,12 @@ def test_whole_chain_tracks_truth_and_drives_the_mcu(tmp_path: Path) -> None:
         latest_truth: list[tuple[float, float, float]] = []
 
         def follow_truth() -> None:
-            for truth in client.messages("camera/ground_truth", timeout=RUN_S + 30):
-                truths[truth.header.seq] = (truth.x, truth.y, truth.yaw)
-                latest_truth[:] = [(truth.x, truth.y, truth.yaw)]
+            try:
+                for truth in client.messages("camera/ground_truth", timeout=RUN_S + 30):
+                    truths[truth.header.seq] = (truth.x, truth.y, truth.yaw)
+                    latest_truth[:] = [(truth.x, truth.y, truth.yaw)]
+            except AssertionError:
+                return  # the chain has stopped sending: this helper's job is over, the test's asserts decide
 
         threading.Thread(target=follow_truth, daemon=True).start()
         for pose in client.messages("infer/pose", timeout=60):
