@@ -23,6 +23,7 @@ from courtloc.localizer.datasets import Dataset
 from courtloc.localizer.manifest import Manifest, read_manifest
 from courtloc.localizer.metrics import PoseMetrics, compute_metrics, position_errors
 from courtloc.localizer import paper_input
+from courtloc.localizer.seed_eval import _stamp as frame_time_s
 from courtloc.services.infer.tracking import Tracker  # the robot's own tracking rule
 
 log = logging.getLogger(__name__)
@@ -78,8 +79,9 @@ class PaperOnnxModel:
 class HitsPredictorModel:
     """A localizer package driven through the runtime predictor, fed radial-scan hits.
 
-    With `tracking` each frame starts from the infer stage's tracker (the same rule as on the robot)
-    while frames come from the same recording in order; without it every frame is localised on its own.
+    With `tracking` each frame starts from the infer stage's tracker (the same rule as on the robot: the
+    model's motion filter, `predictor.track`, when it has one, timed by the file names' time stamps) while
+    frames come from the same recording in order; without it every frame is localised on its own.
     """
 
     def __init__(self, path: Path, threads: int = 1, tracking: bool = True) -> None:
@@ -96,7 +98,12 @@ class HitsPredictorModel:
         recording = str(dataset.recordings[i])
         if not self.tracking or self._last != (recording, i - 1):
             self.tracker.reset()
-        pose = self.predictor.predict(hits, width, height, self.tracker.previous)
+        track = getattr(self.predictor, "track", None) if self.tracking else None
+        if track is not None:
+            pose, self.tracker.motion = track(hits, width, height, self.tracker.motion,
+                                              t=frame_time_s(dataset.filenames[i]))
+        else:
+            pose = self.predictor.predict(hits, width, height, self.tracker.previous)
         self.tracker.update(pose.x, pose.y, pose.yaw, pose.valid, pose.trackable)
         self._last = (recording, i)
         return float(pose.x), float(pose.y), None if pose.yaw is None else float(pose.yaw)

@@ -3,6 +3,10 @@
 torchvision is an optional extra (`vision`); without it `build_baseline` raises BaselineUnavailable
 and the tests skip. Same data, split, loss, optimiser and batch as the paper network; input the same
 0/1 crop, as float32 [1, 1, H, W]. Exported with a manifest (input kind 'dense_image').
+
+`downscale` k > 1 puts a k x k max-pool in front of the CNN: it is trained and exported with the network,
+so the ONNX input (and every caller) stays the full crop while the CNN sees 1/k^2 of the pixels. Max,
+not mean, because the input is thin 0/1 dots and a mean would fade them.
 """
 from __future__ import annotations
 
@@ -30,7 +34,7 @@ def _one_channel_stem(conv: nn.Conv2d) -> nn.Conv2d:
     return nn.Conv2d(1, conv.out_channels, conv.kernel_size, conv.stride, conv.padding, bias=conv.bias is not None)
 
 
-def build_baseline(arch: str) -> nn.Module:
+def build_baseline(arch: str, downscale: int = 1) -> nn.Module:
     try:
         import torchvision
     except ImportError as exc:
@@ -43,6 +47,8 @@ def build_baseline(arch: str) -> nn.Module:
         model.features[0][0] = _one_channel_stem(model.features[0][0])
     else:
         raise ValueError(f"unknown baseline {arch!r}; choose from {ARCHES}")
+    if downscale > 1:
+        return nn.Sequential(nn.MaxPool2d(downscale), model)
     return model
 
 
@@ -82,49 +88,69 @@ def _predict(model: nn.Module, frames, batch_size: int = 16) -> np.ndarray:  # n
 
 
 def train_baseline(cfg, arch: str) -> dict:  # noqa: ANN001 - trainer.TrainConfig
-    """Train one CNN baseline like the paper network (Adam, MSE, batch, epochs from cfg); export OUT/ARCH.onnx."""
+    """Train one CNN baseline like the paper network (Adam, MSE, batch, epochs from cfg); export OUT/ARCH.onnx.
+
+    cfg.frame_step / val_frame_step / downscale are the budget options (see TrainConfig); the per-epoch
+    and summary metrics are on the strided frames, the full held-out numbers come from `courtloc eval`.
+    """
     import json
+    import time
+
+    from tqdm import tqdm
 
     from courtloc.localizer.datasets import Dataset
     from courtloc.localizer.metrics import compute_metrics
     from courtloc.training.export import paper_manifest
     from courtloc.training.trainer import HISTORY, SparseFrames, _split, plot_history
 
-    model = build_baseline(arch)  # fails fast, before loading data, when torchvision is absent
+    build_baseline(arch)  # fails fast, before loading data, when torchvision is absent
     cfg.out.mkdir(parents=True, exist_ok=True)
     dataset = Dataset(cfg.data, csv_path=cfg.csv, kind=cfg.kind)
     train_idx, val_idx = _split(dataset, cfg)
+    log.info("%s: train frames %d (%s, every %d), validation frames %d (%s, every %d), downscale %d", arch,
+             len(train_idx), sorted(set(dataset.recordings[train_idx])), cfg.frame_step, len(val_idx),
+             sorted(set(dataset.recordings[val_idx])), cfg.val_frame_step, cfg.downscale)
     train_frames = SparseFrames(dataset, train_idx, cfg.crop_top, cfg.progress)
     val_frames = SparseFrames(dataset, val_idx, cfg.crop_top, cfg.progress) if len(val_idx) else None
     torch.manual_seed(cfg.seed)
-    model = build_baseline(arch)
+    model = build_baseline(arch, cfg.downscale)
     optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     targets = torch.from_numpy(train_frames.targets)
     history = []
     for epoch in range(1, cfg.epochs + 1):
         order = np.random.default_rng([cfg.seed, epoch]).permutation(len(train_frames))
         running = 0.0
-        for start in range(0, len(order), cfg.batch_size):
+        started = time.perf_counter()
+        starts = range(0, len(order), cfg.batch_size)
+        for start in tqdm(starts, desc=f"{arch} epoch {epoch}/{cfg.epochs}", disable=not cfg.progress, unit="batch"):
             which = order[start:start + cfg.batch_size]
             loss = nn.functional.mse_loss(model(dense_batch(train_frames, which)), targets[which])
             optimiser.zero_grad()
             loss.backward()
             optimiser.step()
             running += float(loss.detach()) * len(which)
-        entry = {"epoch": epoch, "train_loss": running / len(order)}
+        entry = {"epoch": epoch, "train_loss": running / len(order), "train_seconds": time.perf_counter() - started}
         if val_frames is not None:
-            entry["val_mse"] = compute_metrics(_predict(model, val_frames), val_frames.targets).mse
+            val_metrics = compute_metrics(_predict(model, val_frames), val_frames.targets)
+            entry.update(val_mse=val_metrics.mse, val_mean_err_m=val_metrics.mean_err_m)
         history.append(entry)
         log.info("%s epoch %s", arch, entry)
         plot_history(history, cfg.out / f"{arch}_loss_curve.png")
     height, width = train_frames.shape
-    summary = {"arch": arch, "history": history, "train_recordings": sorted(set(dataset.recordings[train_idx])),
+    summary = {"arch": arch, "config": cfg.model_dump(mode="json"), "input_shape": [height, width],
+               "history": history, "train_recordings": sorted(set(dataset.recordings[train_idx].tolist())),
+               "val_recordings": sorted(set(dataset.recordings[val_idx].tolist())),
                "train_fingerprint": dataset.fingerprint(train_idx), "n_train": len(train_idx),
                "metrics": {"train": compute_metrics(_predict(model, train_frames), train_frames.targets).as_dict()}}
     if val_frames is not None:
         summary["metrics"]["val"] = compute_metrics(_predict(model, val_frames), val_frames.targets).as_dict()
     manifest = paper_manifest("dense", summary, height, width, cfg.crop_top, arch, 1, "seed-gazebo", "seed-gazebo")
-    export_cnn(model, height, width, cfg.out / f"{arch}.onnx",
-               manifest.model_copy(update={"name": arch, "extra": {"architecture": f"{arch}, 1-channel stem"}}))
+    stem = f"{cfg.downscale}x{cfg.downscale} max-pool, " if cfg.downscale > 1 else ""
+    training_data = manifest.training_data.model_copy(update={"description": (
+        f"{arch} baseline, Adam {cfg.lr:g}, batch {cfg.batch_size}, {cfg.epochs} epochs, MSE, "
+        f"every {cfg.frame_step} frame(s)")})
+    export_cnn(model, height, width, cfg.out / f"{arch}.onnx", manifest.model_copy(update={
+        "name": arch, "training_data": training_data,
+        "extra": {"architecture": f"{stem}{arch}, 1-channel stem", "downscale": str(cfg.downscale)}}))
     (cfg.out / f"{arch}_{HISTORY}").write_text(json.dumps(summary, indent=1, default=str))
     return summary

@@ -23,6 +23,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     train.add_argument("--lr", type=float, default=1e-4)
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    train.add_argument("--frame-step", type=int, default=1, metavar="K",
+                       help="train on every K-th frame of the training recordings (budget option; default all)")
+    train.add_argument("--val-frame-step", type=int, default=1, metavar="K",
+                       help="per-epoch validation on every K-th held-out frame (budget option; default all)")
+    train.add_argument("--downscale", type=int, default=1, metavar="K",
+                       help="CNN baselines only: K x K max-pool inside the network (input stays full size)")
     train.add_argument("--no-progress", action="store_true")
     train.set_defaults(func=_train)
 
@@ -50,7 +56,11 @@ def _train(args: argparse.Namespace) -> int:
     cfg = TrainConfig(data=args.data, csv=args.csv, kind=args.kind, out=args.out,
                       train_recordings=args.train_recordings, val_recordings=args.val_recordings,
                       crop_top=args.crop_top, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
-                      seed=args.seed, resume=args.resume, progress=not args.no_progress)
+                      seed=args.seed, resume=args.resume, progress=not args.no_progress,
+                      frame_step=args.frame_step, val_frame_step=args.val_frame_step, downscale=args.downscale)
+    if args.arch == "paper" and args.downscale != 1:
+        print("error: --downscale is for the CNN baselines only")
+        return 2
     if args.arch != "paper":
         from courtloc.training.baselines import BaselineUnavailable, train_baseline
 

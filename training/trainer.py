@@ -48,6 +48,12 @@ class TrainConfig(BaseModel):
     seed: int = 0
     resume: bool = False
     progress: bool = True
+    # Budget options (CPU-only runs of the CNN baselines): every k-th frame of the training recordings
+    # (consecutive frames share most of their dots), every k-th held-out frame for the per-epoch validation,
+    # and a k x k max-pool in front of a CNN baseline (inside the exported graph, so its input stays full size).
+    frame_step: int = Field(default=1, ge=1)
+    val_frame_step: int = Field(default=1, ge=1)
+    downscale: int = Field(default=1, ge=1)
 
 
 class SparseFrames:
@@ -128,11 +134,15 @@ def plot_history(history: list[dict], path: Path) -> bool:
 
 
 def _split(dataset: Dataset, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Recording split, then every frame_step-th training and val_frame_step-th held-out frame."""
     if cfg.train_recordings is None and cfg.val_recordings is None:
-        return split_by_recording(dataset.recordings)
-    if cfg.val_recordings == []:
-        return dataset.indices_of(cfg.train_recordings or dataset.recording_ids()), np.array([], np.int64)
-    return split_by_recording(dataset.recordings, val=cfg.val_recordings, train=cfg.train_recordings)
+        train_idx, val_idx = split_by_recording(dataset.recordings)
+    elif cfg.val_recordings == []:
+        train_idx = dataset.indices_of(cfg.train_recordings or dataset.recording_ids())
+        val_idx = np.array([], np.int64)
+    else:
+        train_idx, val_idx = split_by_recording(dataset.recordings, val=cfg.val_recordings, train=cfg.train_recordings)
+    return train_idx[::cfg.frame_step], val_idx[::cfg.val_frame_step]
 
 
 def train(cfg: TrainConfig) -> dict:
