@@ -31,7 +31,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     cross.add_argument("--cold-step", type=int, default=20, help="cold-start pass on every k-th test frame")
     cross.add_argument("--json", type=Path, required=True)
     cross.add_argument("--config-out", type=Path,
-                       help="write the first direction's tuned config (LocalizerConfig JSON)")
+                       help="write a direction's tuned config (LocalizerConfig JSON): see --config-tuned-on")
+    cross.add_argument("--config-tuned-on", help="--config-out takes the settings tuned on this recording "
+                       "(default: the first direction's)")
     cross.set_defaults(func=_crosseval)
 
 
@@ -57,8 +59,8 @@ def _build(args: argparse.Namespace) -> int:
             metrics[f"cold_start_{d['tested_on']}"] = {k: float(v) for k, v in d["cold_start"]["all"].items()}
         data = TrainingData(fingerprint=report.get("fingerprint", ""), recordings=report["recordings"],
                             n_frames=int(report.get("n_frames", 0)),
-                            description="no learned weights: edge offset, hit noise, tilt prior, range error "
-                                        "and the tracker's motion noise tuned per recording (see README); "
+                            description="no learned weights: edge offset, hit noise, range error and the "
+                                        "tracker's motion noise tuned per recording (see README); "
                                         "court and camera from the digital twin")
     manifest = build_package(args.out, court, camera, config, args.name, args.version, metrics, data)
     (args.out / "README.md").write_text(markdown_report(manifest, config, report))
@@ -80,7 +82,10 @@ def _crosseval(args: argparse.Namespace) -> int:
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=1))
     if args.config_out:
-        cfg = apply_settings(base, report["directions"][0]["chosen"])
+        directions = [d for d in report["directions"] if args.config_tuned_on in (None, d["tuned_on"])]
+        if not directions:
+            raise SystemExit(f"--config-tuned-on {args.config_tuned_on}: not one of {report['recordings']}")
+        cfg = apply_settings(base, directions[0]["chosen"])
         args.config_out.write_text(cfg.model_dump_json(indent=1))
     for d in report["directions"]:
         t, c = d["tracking"]["all"], d["cold_start"]["all"]

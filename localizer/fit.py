@@ -285,16 +285,20 @@ def _pose_stds(hh: np.ndarray) -> list[tuple[float, float, np.ndarray | None]]:
     return out
 
 
+def quality_score(n_in: int, ratio: float, pos_std: float, yaw_std: float, valid: bool, q: QualityConfig) -> float:
+    """0..1 from the inliers and the stds (the fit's, or a fused answer's posterior); below 0.5 when not valid."""
+    if not math.isfinite(pos_std) or not math.isfinite(yaw_std):
+        return 0.0
+    score = (min(1.0, n_in / (2.0 * q.min_inliers)) * min(1.0, ratio / max(q.min_inlier_ratio, 1e-9) * 0.5 + 0.5)
+             * math.exp(-pos_std / q.max_position_std_m) * math.exp(-math.degrees(yaw_std) / q.max_yaw_std_deg))
+    return float(score if valid else min(score, 0.49))
+
+
 def _result(pose: np.ndarray, tilt: tuple[float, float], cost: float, n: int, n_in: int, ratio: float, rms: float,
             pos_std: float, yaw_std: float, q: QualityConfig, covariance: np.ndarray | None = None) -> FitResult:
     valid = (n_in >= q.min_inliers and ratio >= q.min_inlier_ratio and pos_std <= q.max_position_std_m
              and yaw_std <= math.radians(q.max_yaw_std_deg))
-    if not math.isfinite(pos_std) or not math.isfinite(yaw_std):
-        score = 0.0
-    else:
-        score = (min(1.0, n_in / (2.0 * q.min_inliers)) * min(1.0, ratio / max(q.min_inlier_ratio, 1e-9) * 0.5 + 0.5)
-                 * math.exp(-pos_std / q.max_position_std_m) * math.exp(-math.degrees(yaw_std) / q.max_yaw_std_deg))
-        score = score if valid else min(score, 0.49)
+    score = quality_score(n_in, ratio, pos_std, yaw_std, valid, q)
     return FitResult(pose=pose, cost=cost, n_hits=n, n_inliers=n_in, inlier_ratio=ratio, rms_m=rms,
                      position_std_m=pos_std, yaw_std_rad=yaw_std, valid=bool(valid), quality=float(score),
                      tilt=tilt, covariance=covariance)

@@ -20,7 +20,7 @@ import numpy as np
 from courtloc.localizer import motion
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.court_field import CourtField
-from courtloc.localizer.fit import FitResult, fit_pose, fit_poses
+from courtloc.localizer.fit import FitResult, fit_pose, fit_poses, quality_score
 from courtloc.localizer.projection import HitGeometry, ProjectedHits
 from courtloc.localizer.search import CoarseSearch
 from courtloc.localizer.symmetry import by_half, by_previous, mirror
@@ -58,7 +58,8 @@ class LocalizeResult:
 
 @dataclass(frozen=True)
 class TrackStep:
-    """One tracked frame: the answer (`result.pose` fused; `result.fit.pose` the frame's own fit) and
+    """One tracked frame: the answer (`result.pose` fused; `result.fit.pose` the frame's own fit; a fused
+    frame's `result.fit` stds, validity and quality are the posterior's, see `_fused`) and
     the motion state to pass with the next frame (None: no track yet, the next frame searches the court)."""
 
     result: LocalizeResult
@@ -119,10 +120,28 @@ class GeometricLocalizer:
             innov = motion.innovation(pred, res.pose, r)
             if innov.chi2 <= mcfg.gate_chi2:
                 new = motion.update(pred, res.pose, r, innov)
-                return TrackStep(self._answer(res, new.pose), new)
+                return TrackStep(self._fused(res, new), new)
             if res.valid:  # the evidence disagrees with the track: restart the track there
                 return TrackStep(res, motion.start(res.pose, res.fit.covariance, t, mcfg))
         return TrackStep(self._answer(res, pred.pose, invalid=True), motion.coast(pred, mcfg))
+
+    def _fused(self, res: LocalizeResult, state: motion.MotionState) -> LocalizeResult:
+        """A usable fit fused into the filter: the answer is the posterior pose, and so are its stds.
+
+        Valid when the fit is, or when it is trackable and the posterior is as well constrained as the
+        quality limits ask of a fit (position std, yaw std): the answer's uncertainty is the posterior's,
+        not the frame's alone. E.g. a degenerate view (lines along one direction) fused with a tight
+        prediction, or a fit whose range-error term puts its yaw std just over the limit. An answer from
+        the prediction alone (`_answer(..., invalid=True)`) stays invalid.
+        """
+        q = self.config.quality
+        pos_std, yaw_std = state.position_std_m, math.sqrt(max(float(state.cov[2, 2]), 0.0))
+        valid = res.fit.valid or (res.trackable and pos_std <= q.max_position_std_m
+                                  and yaw_std <= math.radians(q.max_yaw_std_deg))
+        fit = FitResult(**{**res.fit.__dict__, "valid": bool(valid), "position_std_m": pos_std, "yaw_std_rad": yaw_std,
+                           "quality": quality_score(res.fit.n_inliers, res.fit.inlier_ratio, pos_std, yaw_std,
+                                                    valid, q)})
+        return self._answer(LocalizeResult(pose=res.pose, fit=fit, mode=res.mode), state.pose)
 
     def _answer(self, res: LocalizeResult, pose: np.ndarray, invalid: bool = False) -> LocalizeResult:
         """`res` answering `pose` instead of its fit's pose (the fit stays, for its diagnostics)."""

@@ -45,11 +45,13 @@ def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | 
         *([report["build_command"]] if report.get("build_command") else []),
         "```",
         "",
-        "Tuned on one recording (edge offset, hit noise, tilt prior, then the motion filter's noise: small "
-        "grids, each scored by tracking the whole tuning recording; lowest p95 wins), tested on the other: "
-        "*tracking* = every frame in time order with the motion filter (prediction from the past frames, "
-        "fused with the frame's fit by covariance; global search when there is no track); *cold start* = "
-        "global search alone on every k-th frame, no previous pose, symmetry by the configured half.",
+        "Tuned on one recording (edge offset, hit noise, model error per metre of range, then the motion "
+        "filter's noise: small grids, each scored by tracking the whole tuning recording; lowest p95 wins; the "
+        "tilt prior is fixed), tested on the other: *tracking* = every frame in time order with the motion "
+        "filter (prediction from the past frames, fused with the frame's fit by covariance; global search when "
+        "there is no track; a fused frame is valid when its fit is, or when the fit is trackable and the "
+        "filter's posterior stds are within the validity limits); *cold start* = global search alone on every "
+        "k-th frame, no previous pose, symmetry by the configured half.",
         "",
         "| run | n | mean cm | median cm | p95 cm | yaw median deg | notes |",
         "|---|---|---|---|---|---|---|",

@@ -134,3 +134,33 @@ def test_track_keeps_the_twin_of_the_state(setup) -> None:
     twin = mirror(np.array(POSE))
     step = loc.track(frame, motion.start(twin + [0.04, 0.02, -0.01], None, 0.0, loc.config.motion), 0.08)
     assert step.result.valid and _close(step.result.pose, twin), "the same paint, seen from the mirror pose"
+
+
+def _far_edge_only(court, loc: GeometricLocalizer, pose: np.ndarray):
+    """A degenerate view: only the white floor's far edge at y = 5.99 (x along it is free)."""
+    pts, nrm = court.white_edges(0.05)
+    sel = (nrm[:, 1] > 0.9) & (np.abs(pts[:, 1] - 5.99) < 0.01) & (np.abs(pts[:, 0] - pose[0]) < 3.0)
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    d = pts[sel] - pose[:2]
+    return loc.geometry.from_points(np.column_stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]]))
+
+
+@pytest.mark.parametrize("prior_std_m, valid", [(0.01, True), (0.5, False)])
+def test_a_fused_degenerate_frame_is_valid_by_its_posterior(prior_std_m, valid) -> None:
+    court, camera = load_court("seed-gazebo"), load_camera("seed-gazebo")
+    loc = GeometricLocalizer(court, camera, LocalizerConfig())
+    pose = np.array([1.0, 2.5, math.pi / 2])  # facing +y, towards the far edge
+    hits = _far_edge_only(court, loc, pose)
+    # A track standing still, its position known to prior_std_m and its yaw to 0.1 degree.
+    mean = np.concatenate([pose + [0.005, -0.005, 0.0], np.zeros(3)])
+    cov = np.diag([prior_std_m ** 2, prior_std_m ** 2, math.radians(0.1) ** 2, 1e-4, 1e-4, 1e-4])
+    state = motion.MotionState(mean=mean, cov=cov, t=0.0)
+    own = loc.localize(hits, state.pose)
+    assert not own.valid and own.trackable, "the frame alone is degenerate but trackable"
+    step = loc.track(hits, state, 0.08)
+    assert step.state is not None and step.state.lost == 0, "fused, not answered from the prediction"
+    q = loc.config.quality
+    assert step.result.valid is valid
+    assert (step.result.fit.position_std_m <= q.max_position_std_m) is valid, "the answer carries the posterior std"
+    assert valid or step.result.quality < 0.5
+    assert abs(step.result.pose[1] - pose[1]) < 0.02, "y is pinned by the edge either way"
