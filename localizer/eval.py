@@ -23,7 +23,7 @@ from courtloc.localizer.datasets import Dataset
 from courtloc.localizer.manifest import Manifest, read_manifest
 from courtloc.localizer.metrics import PoseMetrics, compute_metrics, position_errors
 from courtloc.localizer import paper_input
-from courtloc.localizer.seed_eval import _stamp as frame_time_s
+from courtloc.localizer.seed_eval import frame_time
 from courtloc.services.infer.tracking import Tracker  # the robot's own tracking rule
 
 log = logging.getLogger(__name__)
@@ -101,7 +101,7 @@ class HitsPredictorModel:
         track = getattr(self.predictor, "track", None) if self.tracking else None
         if track is not None:
             pose, self.tracker.motion = track(hits, width, height, self.tracker.motion,
-                                              t=frame_time_s(dataset.filenames[i]))
+                                              t=frame_time(dataset.filenames[i]))
         else:
             pose = self.predictor.predict(hits, width, height, self.tracker.previous)
         self.tracker.update(pose.x, pose.y, pose.yaw, pose.valid, pose.trackable)
