@@ -7,26 +7,15 @@ import pytest
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import fit_pose, fit_poses
 from courtloc.localizer.geometric import GeometricLocalizer
-from courtloc.localizer.projection import FloorProjector
-from courtloc.sim.camera import load_camera
-from courtloc.sim.court import load_court
+from localizer_kit import twin_setup
 
 POSES = [(2.0, 1.0, 0.3), (4.5, -2.0, 2.0), (-1.0, -2.0, 0.5)]
 
 
 @pytest.fixture(scope="module")
 def setup():
-    from courtloc.sim.edges import scan_hits
-    from courtloc.sim.render import Renderer
-
-    court, camera = load_court("seed-gazebo"), load_camera("seed-gazebo")
-    localizer = GeometricLocalizer(court, camera)
-    renderer = Renderer(court, camera)
-    projector = FloorProjector(camera, localizer.config.edge_offset_px, localizer.config.max_range_m)
-    frames = {}
-    for pose in POSES:
-        hits = scan_hits(renderer.render(pose))
-        frames[pose] = projector.project(hits[:, 0], hits[:, 1])
+    court, camera, localizer, projector, raw = twin_setup(POSES)
+    frames = {pose: projector.project(hits[:, 0], hits[:, 1]) for pose, hits in raw.items()}
     return court, camera, localizer, frames
 
 

@@ -18,10 +18,8 @@ import pytest
 from courtloc.localizer import fit_kernel
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import fit_poses, kernel_active, kernel_enabled
-from courtloc.localizer.geometric import GeometricLocalizer
-from courtloc.localizer.projection import FloorProjector, lookup_table
-from courtloc.sim.camera import load_camera
-from courtloc.sim.court import load_court
+from courtloc.localizer.projection import lookup_table
+from localizer_kit import twin_setup
 
 pytestmark = pytest.mark.skipif(not fit_kernel.available(), reason="compiled fit kernel not built (no C compiler)")
 
@@ -30,15 +28,7 @@ POSES = [(2.0, 1.0, 0.3), (4.5, -2.0, 2.0), (-1.0, -2.0, 0.5), (1.0, 3.0, -1.2),
 
 @pytest.fixture(scope="module")
 def setup():
-    from courtloc.sim.edges import scan_hits
-    from courtloc.sim.render import Renderer
-
-    court, camera = load_court("seed-gazebo"), load_camera("seed-gazebo")
-    localizer = GeometricLocalizer(court, camera)
-    renderer = Renderer(court, camera)
-    projector = FloorProjector(camera, localizer.config.edge_offset_px, localizer.config.max_range_m)
-    raw = {pose: scan_hits(renderer.render(pose)) for pose in POSES}
-    return court, camera, localizer, projector, raw
+    return twin_setup(POSES)
 
 
 def _parallel_only(court, localizer):

@@ -57,7 +57,7 @@ def test_geometric_predictor_tracks_with_the_motion_filter_state() -> None:
     """What the infer stage runs per frame: the first frame searches, later ones track from the returned state."""
     from courtloc.localizer.eval import default_model_path
     from courtloc.localizer.motion import MotionState
-    from tests.infer_models import TwinFrames
+    from infer_models import TwinFrames
 
     poses = [(1.0, -0.5, 0.3), (1.03, -0.5, 0.31), (1.06, -0.49, 0.32)]
     frames = TwinFrames(poses)
