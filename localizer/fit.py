@@ -13,7 +13,6 @@ Pitch changes every hit's angle below the horizon by the same amount, roll by ta
 """
 from __future__ import annotations
 
-import logging
 import math
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -27,12 +26,10 @@ from courtloc.localizer.config import FitConfig, QualityConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.projection import ProjectedHits
 
-log = logging.getLogger(__name__)
 # The compiled kernel (fit_kernel.c) when it was built; this file's numpy code is the reference it is
 # tested against and the fallback without a compiler. A context variable, so that switching it for a
 # comparison (tests, `courtloc bench localize`) does not leak into other threads.
 _use_kernel: ContextVar[bool] = ContextVar("courtloc_fit_kernel", default=True)
-_fallback_logged = False
 
 
 def kernel_active() -> bool:
@@ -195,12 +192,7 @@ def fit_poses(field: CourtField, hits: ProjectedHits, starts: np.ndarray, cfg: F
 
 def _kernel_field(field: CourtField):
     """The kernel's view of `field`, or None for the numpy path (disabled, not built, unusable field)."""
-    global _fallback_logged
-    if not kernel_active():
-        if not fit_kernel.available() and not _fallback_logged:
-            _fallback_logged = True
-            log.warning("compiled fit kernel not built (no C compiler at install?): using the numpy fit, "
-                        "several times slower")
+    if not kernel_active():  # fit_kernel said once, at import, when it was not built
         return None
     return fit_kernel.kernel_field(field)
 

@@ -23,6 +23,9 @@ try:
     from courtloc.localizer import _fit_kernel
 except ImportError:  # built without a compiler: fit.py falls back to numpy
     _fit_kernel = None
+    # Module import runs once per process, so this says it once.
+    log.warning("compiled fit kernel not built (no C compiler at install?): using the numpy fit, several "
+                "times slower")
 
 # Columns of the kernel's (S, OUT_COLUMNS) result rows.
 PARAMS, COST, N_INLIERS, RMS, POS_STD, YAW_STD, COV, COV_OK = slice(0, 5), 5, 6, 7, 8, 9, slice(10, 19), 19
