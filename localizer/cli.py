@@ -34,6 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="write a direction's tuned config (LocalizerConfig JSON): see --config-tuned-on")
     cross.add_argument("--config-tuned-on", help="--config-out takes the settings tuned on this recording "
                        "(default: the first direction's)")
+    cross.add_argument("--no-band-bias", action="store_true",
+                       help="do not calibrate the thin-band bias (docs/localizer.md): the fit assumes none")
     cross.set_defaults(func=_crosseval)
 
 
@@ -59,8 +61,8 @@ def _build(args: argparse.Namespace) -> int:
             metrics[f"cold_start_{d['tested_on']}"] = {k: float(v) for k, v in d["cold_start"]["all"].items()}
         data = TrainingData(fingerprint=report.get("fingerprint", ""), recordings=report["recordings"],
                             n_frames=int(report.get("n_frames", 0)),
-                            description="no learned weights: edge offset, hit noise, range error and the "
-                                        "tracker's motion noise tuned per recording (see README); "
+                            description="no learned weights: edge offset, thin-band bias, hit noise, range "
+                                        "error and the tracker's motion noise tuned per recording (see README); "
                                         "court and camera from the digital twin")
     manifest = build_package(args.out, court, camera, config, args.name, args.version, metrics, data)
     (args.out / "README.md").write_text(markdown_report(manifest, config, report))
@@ -76,7 +78,7 @@ def _crosseval(args: argparse.Namespace) -> int:
     frames = load_seed_frames(args.data, args.csv, args.lag_s, args.step)
     base = _config(args.config)
     report = cross_recording(load_court(args.court), load_camera(args.camera), frames, base,
-                             cold_step=args.cold_step)
+                             cold_step=args.cold_step, calibrate_band_bias=not args.no_band_bias)
     report.update({"data": args.data.name, "lag_s": args.lag_s, "step": args.step, "n_frames": len(frames.hits),
                    "court": args.court, "camera": args.camera})
     args.json.parent.mkdir(parents=True, exist_ok=True)

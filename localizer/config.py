@@ -1,9 +1,10 @@
 """Settings of the geometric localizer (validated at load; a bad value fails with the field's name)."""
 from __future__ import annotations
 
+import math
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 SymmetryMode = Literal["half", "previous", "both"]
 Half = Literal["+x", "-x"]
@@ -26,6 +27,22 @@ class FitConfig(BaseModel):
     gate_cos: float = Field(-0.2, ge=-1, le=1,
                             description="min cos between the scan ray and the edge normal (far edges only)")
     step_tol_m: float = Field(5e-4, gt=0, description="stop when a step moves less than this")
+    # The thin-band sampling bias (band_bias.py), calibrated per camera and renderer; both empty: off.
+    band_bias_widths: list[float] = Field(default_factory=list, max_length=16,
+                                          description="band widths along the scan ray, in scan steps (increasing)")
+    band_bias_samples: list[float] = Field(default_factory=list, max_length=16,
+                                           description="expected hit offset past the far edge at those widths, in "
+                                           "scan steps, beyond what edge_offset_px already removes")
+
+    @model_validator(mode="after")
+    def _band_bias_knots(self) -> "FitConfig":
+        w, v = self.band_bias_widths, self.band_bias_samples
+        if len(w) != len(v) or len(w) == 1:
+            raise ValueError(f"band_bias_widths and band_bias_samples: need equal lengths, 0 or >= 2 (got {len(w)} "
+                             f"and {len(v)})")
+        if any(b <= a for a, b in zip(w, w[1:])) or any(not math.isfinite(x) for x in w + v):
+            raise ValueError(f"band_bias_widths must be finite and increasing, band_bias_samples finite: {w}, {v}")
+        return self
 
 
 class QualityConfig(BaseModel):

@@ -150,6 +150,11 @@ class GridCell:
         return values.ravel()[self.index + (self.tx >= 0.5) + (self.ty >= 0.5) * self.nx]
 
 
+# Bands narrower than twice this are "thin" for the band bias (band_bias.py): at most ~2 scan steps wide
+# within the scan's range on a court whose lines are 5-10 cm wide; wide paint (floors) never counts.
+THIN_BAND_HALF_WIDTH_M = 0.1
+
+
 @dataclass(frozen=True)
 class CourtField:
     """Signed distance samples on a regular grid: value[i, j] at (x0 + j * res, y0 + i * res)."""
@@ -193,17 +198,29 @@ class CourtField:
         return cls(values=field.values, x0=field.x0, y0=field.y0, resolution=field.resolution,
                    half_width=field.band_half_width())
 
-    def band_half_width(self, reach_m: float = 0.15) -> np.ndarray:
-        """Per cell inside paint: the depth of the band's middle nearby (= half its width), for far-edge residuals.
+    def band_half_width(self, reach_m: float = 0.15, near_m: float = 1.0) -> np.ndarray:
+        """Per cell inside paint: the depth of the band's middle nearby (= half its width, at most ~reach_m),
+        for far-edge residuals; outside paint: the half-width of the nearest paint if that is a thin band
+        (< THIN_BAND_HALF_WIDTH_M) within near_m, else 0.
 
         A hit quantised into a thin line's inside, nearer its near edge, belongs to the far edge,
-        which lies (2 * half-width - depth) ahead. Outside paint the value is 0.
+        which lies (2 * half-width - depth) ahead. A hit just past a thin band's far edge is further out
+        than one past a wide band's (band_bias.py): the fit looks up the band it belongs to here.
         """
         import cv2
 
         depth = np.maximum(-self.values, 0.0).astype(np.float32)
         k = 2 * int(round(reach_m / self.resolution)) + 1
-        return np.where(depth > 0, cv2.dilate(depth, np.ones((k, k), np.uint8)), 0.0).astype(np.float32)
+        inside = np.where(depth > 0, cv2.dilate(depth, np.ones((k, k), np.uint8)), 0.0).astype(np.float32)
+        paint = depth > 0
+        if not paint.any():
+            return inside
+        # DIST_LABEL_PIXEL numbers the zero (paint) pixels from 1 in raster order, the order of flatnonzero.
+        dist, labels = cv2.distanceTransformWithLabels((~paint).astype(np.uint8), cv2.DIST_L2, 5,
+                                                       labelType=cv2.DIST_LABEL_PIXEL)
+        nearest = inside.ravel()[np.flatnonzero(paint)[labels.ravel() - 1]].reshape(inside.shape)
+        thin = (nearest < THIN_BAND_HALF_WIDTH_M) & (dist * self.resolution <= near_m)
+        return np.where(paint, inside, np.where(thin, nearest, 0.0)).astype(np.float32)
 
     def coarse(self, factor: int, clip: float) -> "CourtField":
         """A subsampled copy with |value| clipped, for the global search (blur-free: min over blocks)."""

@@ -21,7 +21,7 @@ from typing import Iterator
 
 import numpy as np
 
-from courtloc.localizer import fit_kernel
+from courtloc.localizer import band_bias, fit_kernel
 from courtloc.localizer.config import FitConfig, QualityConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.projection import ProjectedHits
@@ -129,6 +129,8 @@ def _residuals(field: CourtField, terms: _FrameTerms, params: np.ndarray, cfg: F
         sign = 1.0 - 2.0 * flip
         gx = gx * sign
         gy = gy * sign
+    if field.half_width is not None and cfg.band_bias_widths:
+        d = d - band_bias.offset_m(cell.nearest(field.half_width), hits.step_m * np.abs(ray_cos), cfg)
     usable = (inside | (ray_cos >= cfg.gate_cos)) & (np.abs(d) < cfg.max_residual_m)
     inv_m = inv * inv_res  # 1/sigma and per-cell -> per-metre gradient in one factor
     j = np.empty((params.shape[0], 6, d.shape[1]))

@@ -23,7 +23,7 @@
 #define NOUT 20 /* per start: params[5], cost, n_in, rms, pos_std, yaw_std, cov[9], cov_ok */
 /* Packed hit geometry, one row of HS doubles per hit (projection.PACKED_COLUMNS says the same):
  * point x, y | ray dir x, y | sigma along, across (m per pixel) | view dir x, y | range | depression |
- * tan(azimuth) | unused */
+ * tan(azimuth) | floor metres per scan step (0: unknown) */
 #define HS 12
 #define H_PX 0
 #define H_RX 2
@@ -32,6 +32,8 @@
 #define H_RANGE 8
 #define H_DEP 9
 #define H_TAN 10
+#define H_STEP 11
+#define MAX_KNOTS 16 /* config.FitConfig's band-bias knots */
 
 static const double PI = 3.141592653589793; /* math.pi */
 
@@ -122,22 +124,23 @@ static double as_double(PyObject *o, int *err)
     return v;
 }
 
-/* hit_geometry(table f32 (H*W, 2), height, width, hits int16 (N, 4), cam_x, cam_y, cam_h, origin_x, origin_y,
- *              k_along, k_across, out f64 (N, 12)) -> number of rows written (hits seeing floor, in order).
+/* hit_geometry(table f32 (H*W, 2), steps f32 (H*W), height, width, hits int16 (N, 4), cam_x, cam_y, cam_h,
+ *              origin_x, origin_y, k_along, k_across, out f64 (N, 12)) -> number of rows written (hits seeing
+ *              floor, in order).
  * As the ONNX graph (onnx_graph.py: pixels outside the image or NaN in the table give no point) followed by
  * projection.HitGeometry.from_points. */
 static PyObject *kernel_hit_geometry(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
 {
-    if (nargs != 12) {
-        PyErr_SetString(PyExc_TypeError, "hit_geometry() takes 12 arguments");
+    if (nargs != 13) {
+        PyErr_SetString(PyExc_TypeError, "hit_geometry() takes 13 arguments");
         return NULL;
     }
-    Py_buffer table, hits, out;
+    Py_buffer table, steps, hits, out;
     int err = 0;
-    const Py_ssize_t height = PyLong_AsSsize_t(args[1]), width = PyLong_AsSsize_t(args[2]);
-    const double cam_x = as_double(args[4], &err), cam_y = as_double(args[5], &err), h = as_double(args[6], &err);
-    const double ox = as_double(args[7], &err), oy = as_double(args[8], &err);
-    const double k_along = as_double(args[9], &err), k_across = as_double(args[10], &err);
+    const Py_ssize_t height = PyLong_AsSsize_t(args[2]), width = PyLong_AsSsize_t(args[3]);
+    const double cam_x = as_double(args[5], &err), cam_y = as_double(args[6], &err), h = as_double(args[7], &err);
+    const double ox = as_double(args[8], &err), oy = as_double(args[9], &err);
+    const double k_along = as_double(args[10], &err), k_across = as_double(args[11], &err);
     if (err || PyErr_Occurred())
         return NULL;
     if (height < 1 || width < 1) {
@@ -146,19 +149,25 @@ static PyObject *kernel_hit_geometry(PyObject *module, PyObject *const *args, Py
     }
     if (get_buffer(args[0], &table, "f", 2 * height * width, 0, "table") < 0)
         return NULL;
-    if (get_buffer(args[3], &hits, "h", -1, 0, "hits") < 0) {
+    if (get_buffer(args[1], &steps, "f", height * width, 0, "steps") < 0) {
         PyBuffer_Release(&table);
+        return NULL;
+    }
+    if (get_buffer(args[4], &hits, "h", -1, 0, "hits") < 0) {
+        PyBuffer_Release(&table);
+        PyBuffer_Release(&steps);
         return NULL;
     }
     const Py_ssize_t n = hits.len / (4 * hits.itemsize);
-    if (hits.len != n * 4 * hits.itemsize || get_buffer(args[11], &out, "d", n * HS, 1, "out") < 0) {
+    if (hits.len != n * 4 * hits.itemsize || get_buffer(args[12], &out, "d", n * HS, 1, "out") < 0) {
         if (!PyErr_Occurred())
             PyErr_SetString(PyExc_ValueError, "hits: expected (N, 4) int16");
         PyBuffer_Release(&table);
+        PyBuffer_Release(&steps);
         PyBuffer_Release(&hits);
         return NULL;
     }
-    const float *tab = table.buf;
+    const float *tab = table.buf, *stp = steps.buf;
     const short *hv = hits.buf;
     double *o = out.buf;
     Py_ssize_t m = 0;
@@ -191,9 +200,11 @@ static PyObject *kernel_hit_geometry(PyObject *module, PyObject *const *args, Py
         row[H_DEP] = atan2(h, rng);
         double t = vy / (vx > 1e-3 ? vx : 1e-3);
         row[H_TAN] = t < -3.0 ? -3.0 : (t > 3.0 ? 3.0 : t);
-        row[11] = 0.0;
+        const double step = stp[r * width + c];
+        row[H_STEP] = isfinite(step) ? step : 0.0;
     }
     PyBuffer_Release(&table);
+    PyBuffer_Release(&steps);
     PyBuffer_Release(&hits);
     PyBuffer_Release(&out);
     return PyLong_FromSsize_t(m);
@@ -216,7 +227,25 @@ typedef struct {
         inlier_sigmas;
     long huber_iterations, max_iterations;
     int tilt;
+    int n_knots; /* band bias (band_bias.py): expected offset in steps at band widths in steps; 0: off */
+    double knot_w[MAX_KNOTS], knot_v[MAX_KNOTS];
+    double thin_half_width; /* bands at least twice this wide have no band bias */
 } Config;
+
+/* numpy.interp(w, knot_w, knot_v): clamped at both ends, linear between knots */
+static double band_offset(const Config *cfg, double w)
+{
+    const int k = cfg->n_knots;
+    if (!(w > cfg->knot_w[0]))
+        return cfg->knot_v[0];
+    if (w >= cfg->knot_w[k - 1])
+        return cfg->knot_v[k - 1];
+    int a = 0;
+    while (w >= cfg->knot_w[a + 1])
+        a++;
+    const double slope = (cfg->knot_v[a + 1] - cfg->knot_v[a]) / (cfg->knot_w[a + 1] - cfg->knot_w[a]);
+    return slope * (w - cfg->knot_w[a]) + cfg->knot_v[a];
+}
 
 /* Python's (numpy's) floor-division remainder: the result has the sign of b. */
 static double py_mod(double a, double b)
@@ -322,12 +351,20 @@ static void residuals(const FieldObject *f, const Frame *fr, const double *p, in
         const double rx0 = hi[H_RX], ry0 = hi[H_RX + 1];
         const double ray_cos = nxv * (rx0 * c - ry0 * s) + nyv * (rx0 * s + ry0 * c);
         const int inside = d < 0;
+        const Py_ssize_t near = cell + (tx >= 0.5) + (ty >= 0.5) * nx;
         if (half != NULL && inside && ray_cos < 0) {
             /* the band's far edge: (2 * half-width - depth) further along, gradient flipped */
-            const Py_ssize_t near = cell + (tx >= 0.5) + (ty >= 0.5) * nx;
             d = -d - 2.0 * (double)half[near];
             gx = -gx;
             gy = -gy;
+        }
+        if (half != NULL && cfg->n_knots > 0) {
+            /* a band under a few scan steps wide puts its hits further out (band_bias.py) */
+            const double hw = (double)half[near], step = hi[H_STEP];
+            if (hw > 0.0 && hw < cfg->thin_half_width && step > 0.0) {
+                const double s_n = step * fabs(ray_cos);
+                d -= band_offset(cfg, 2.0 * hw / (s_n > 1e-9 ? s_n : 1e-9)) * s_n;
+            }
         }
         usable[i] = (inside || ray_cos >= cfg->gate_cos) && fabs(d) < cfg->max_res;
         const double inv_m = inv * inv_res;
@@ -446,7 +483,7 @@ static void lu_solve(const double *a, int k, const int *piv, double *b)
     }
 }
 
-/* fit(field, hits f64 (N, 12), cam_x, cam_y, cam_h, starts f64 (S, 3), out f64 (S, 20), config 13-tuple)
+/* fit(field, hits f64 (N, 12), cam_x, cam_y, cam_h, starts f64 (S, 3), out f64 (S, 20), config 16-tuple)
  * -> None: every start refined as fit.fit_poses does, results written into out (layout: fit_kernel.py). */
 static PyObject *kernel_fit(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
 {
@@ -468,9 +505,25 @@ static PyObject *kernel_fit(PyObject *module, PyObject *const *args, Py_ssize_t 
     int err = 0;
 
     PyObject *ct = args[7];
-    if (!PyTuple_Check(ct) || PyTuple_GET_SIZE(ct) != 13) {
-        PyErr_SetString(PyExc_TypeError, "fit(): config must be a 13-tuple");
+    if (!PyTuple_Check(ct) || PyTuple_GET_SIZE(ct) != 16) {
+        PyErr_SetString(PyExc_TypeError, "fit(): config must be a 16-tuple");
         return NULL;
+    }
+    cfg.thin_half_width = as_double(PyTuple_GET_ITEM(ct, 15), &err);
+    PyObject *kw = PyTuple_GET_ITEM(ct, 13), *kv = PyTuple_GET_ITEM(ct, 14);
+    if (!PyTuple_Check(kw) || !PyTuple_Check(kv) || PyTuple_GET_SIZE(kw) != PyTuple_GET_SIZE(kv)
+        || PyTuple_GET_SIZE(kw) > MAX_KNOTS || PyTuple_GET_SIZE(kw) == 1) {
+        PyErr_SetString(PyExc_ValueError, "fit(): band-bias knots must be two tuples of equal length, 0 or 2..16");
+        return NULL;
+    }
+    cfg.n_knots = (int)PyTuple_GET_SIZE(kw);
+    for (int a = 0; a < cfg.n_knots; a++) {
+        cfg.knot_w[a] = as_double(PyTuple_GET_ITEM(kw, a), &err);
+        cfg.knot_v[a] = as_double(PyTuple_GET_ITEM(kv, a), &err);
+        if (a > 0 && !(cfg.knot_w[a] > cfg.knot_w[a - 1])) {
+            PyErr_SetString(PyExc_ValueError, "fit(): band-bias widths must increase");
+            return NULL;
+        }
     }
     cfg.pixel_sigma = as_double(PyTuple_GET_ITEM(ct, 0), &err);
     cfg.floor_sigma = as_double(PyTuple_GET_ITEM(ct, 1), &err);
@@ -715,7 +768,8 @@ static PyMethodDef methods[] = {
      "fit(field, hits, cam_x, cam_y, cam_h, starts, out, config): the whole robust fit of every start; "
      "results written into out (S, 20)"},
     {"hit_geometry", (PyCFunction)(void (*)(void))kernel_hit_geometry, METH_FASTCALL,
-     "hit_geometry(table, height, width, hits, cam_x, cam_y, cam_h, origin_x, origin_y, k_along, k_across, out) "
+     "hit_geometry(table, steps, height, width, hits, cam_x, cam_y, cam_h, origin_x, origin_y, k_along, k_across, "
+     "out) "
      "-> rows written: hits -> floor points -> the fit's packed per-hit geometry"},
     {NULL, NULL, 0, NULL},
 };

@@ -14,7 +14,7 @@ import weakref
 import numpy as np
 
 from courtloc.localizer.config import FitConfig
-from courtloc.localizer.court_field import CourtField
+from courtloc.localizer.court_field import THIN_BAND_HALF_WIDTH_M, CourtField
 from courtloc.localizer.projection import ProjectedHits
 
 log = logging.getLogger(__name__)
@@ -66,7 +66,7 @@ def run(kfield, hits: ProjectedHits, starts: np.ndarray, cfg: FitConfig, inlier_
     prior = 1.0 / math.radians(cfg.tilt_sigma_deg) ** 2 if tilt else 0.0
     config = (cfg.pixel_sigma, cfg.floor_sigma_m, cfg.range_sigma, prior, cfg.tukey_c, cfg.huber_c,
               cfg.huber_iterations, iterations, cfg.max_residual_m, cfg.gate_cos, cfg.step_tol_m, inlier_sigmas,
-              tilt)
+              tilt, tuple(cfg.band_bias_widths), tuple(cfg.band_bias_samples), THIN_BAND_HALF_WIDTH_M)
     out = np.empty((len(starts), OUT_COLUMNS))
     packed = hits.packed
     if not packed.flags.c_contiguous:  # e.g. a slice of another frame's hits

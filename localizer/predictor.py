@@ -119,7 +119,8 @@ class GeometricPredictor:
         """The fit's per-hit geometry: compiled table lookup when the kernel runs, else onnxruntime + numpy."""
         if self._kernel_active():
             return self.localizer.geometry.from_table(self.floor_table, _as_hits(hits))
-        return self.localizer.geometry.from_points(self.floor_points(hits))
+        hits = _as_hits(hits)
+        return self.localizer.geometry.from_points(self.floor_points(hits), hits[:, 0], hits[:, 1])
 
     def _check_size(self, width: int, height: int) -> None:
         if (width, height) != (self.width, self.height):

@@ -11,7 +11,9 @@ the scan reports the first pixel past the paint's far edge, so the edge itself l
 Besides the point, the fit needs per hit
 - the unit direction of its scan ray on the floor (image rays from the scan origin are straight, and the
   floor homography keeps them straight, so on the floor they run from the origin's floor point outwards),
-- the floor error one pixel causes: range^2 / (f h) along the view, range / f across it.
+- the floor error one pixel causes: range^2 / (f h) along the view, range / f across it,
+- the floor length of one scan step (one pixel along the image ray) at the hit's pixel: a line thinner
+  than a step is seen only when a sample lands in it, which moves its hits outwards (band_bias.py).
 
 All per-hit arrays are views into one packed (N, 12) array (PACKED_COLUMNS), which the compiled fit
 (fit_kernel.c) reads as it is; with the kernel built, hits -> table -> geometry is one C call too.
@@ -69,6 +71,10 @@ class ProjectedHits:
     def range_m(self) -> np.ndarray:  # (N,) metres from the camera
         return self.packed[:, 8]
 
+    @cached_property
+    def step_m(self) -> np.ndarray:  # (N,) floor metres per scan step along the ray (0: unknown)
+        return self.packed[:, 11]
+
     # For the per-frame tilt (body pitch/roll) the fit may estimate: each point's angle below the
     # horizon and tan of its azimuth (roll changes that angle in proportion to it).
     @cached_property
@@ -112,6 +118,19 @@ def build_floor_table(camera: CameraModel, edge_offset_px: float, max_range_m: f
     return pts.astype(np.float32)
 
 
+def build_step_table(camera: CameraModel) -> np.ndarray:
+    """(H * W,) float32 floor length of one scan step at every pixel: the distance between the floor points
+    of the pixel and of the point one pixel nearer the scan origin on its ray (NaN: no floor)."""
+    rows, cols = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
+    rows, cols = rows.ravel(), cols.ravel()
+    r0, c0 = scan_origin_rc(camera)
+    dr, dc = rows - r0, cols - c0
+    norm = np.maximum(np.hypot(dr, dc), 1e-9)
+    here = camera.pixel_to_floor(np.stack([cols, rows], axis=1))
+    before = camera.pixel_to_floor(np.stack([cols - dc / norm, rows - dr / norm], axis=1))
+    return np.hypot(*(here - before).T).astype(np.float32)
+
+
 class HitGeometry:
     """Turns a frame's floor points (from the table) into what the pose fit needs."""
 
@@ -125,12 +144,19 @@ class HitGeometry:
         self._camera_xy = complex(*self._cam_xy)
         self._k_along = 1.0 / (camera.fy * camera.mount.height)
         self._k_across = 1.0 / camera.fx
+        self.step_table = build_step_table(camera)
 
-    def from_points(self, points: np.ndarray) -> ProjectedHits:
-        """Geometry of the finite rows of `points` (NaN rows: no floor or outside the image)."""
+    def from_points(self, points: np.ndarray, rows: np.ndarray | None = None,
+                    cols: np.ndarray | None = None) -> ProjectedHits:
+        """Geometry of the finite rows of `points` (NaN rows: no floor or outside the image); with the hits'
+        pixels (`rows`, `cols`, aligned with `points`) also each hit's scan-step length, else 0 (unknown)."""
         pts = np.asarray(points, np.float64)
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        finite = np.all(np.isfinite(pts), axis=1)
+        pts = pts[finite]
         packed = np.zeros((len(pts), PACKED_COLUMNS))
+        if rows is not None and cols is not None:
+            steps = lookup_table(self.step_table[:, None], self.camera.width, self.camera.height, rows, cols)
+            packed[:, 11] = np.nan_to_num(steps[finite, 0], nan=0.0)
         packed[:, 0:2] = pts
         rel = pts - self._cam_xy
         rng = np.hypot(rel[:, 0], rel[:, 1])
@@ -150,21 +176,23 @@ class HitGeometry:
         """`from_points` of int16 (N, 4) hits (row, col, ...) looked up in a floor table (build_floor_table's
         layout) in one compiled call; the numpy lookup + `from_points` when the kernel is not built."""
         if _fit_kernel is None:
-            return self.from_points(lookup_table(table, self.camera.width, self.camera.height, hits[:, 0], hits[:, 1]))
+            return self.from_points(lookup_table(table, self.camera.width, self.camera.height, hits[:, 0], hits[:, 1]),
+                                    hits[:, 0], hits[:, 1])
         packed = np.empty((len(hits), PACKED_COLUMNS))
         mount = self.camera.mount
-        n = _fit_kernel.hit_geometry(table, self.camera.height, self.camera.width, hits, mount.x, mount.y,
+        n = _fit_kernel.hit_geometry(table, self.step_table, self.camera.height, self.camera.width, hits, mount.x, mount.y,
                                      mount.height, float(self.origin_floor[0]), float(self.origin_floor[1]),
                                      self._k_along, self._k_across, packed)
         return ProjectedHits(packed[:n], self._camera_xy, mount.height)
 
 
 def lookup_table(table: np.ndarray, width: int, height: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """(N, 2) floor points of integer pixels; NaN for pixels outside the image or seeing no floor."""
+    """(N, C) entries of a per-pixel (H * W, C) table at integer pixels (floor points: C = 2); NaN for
+    pixels outside the image or seeing no floor."""
     r = np.rint(np.asarray(rows)).astype(np.int64)
     c = np.rint(np.asarray(cols)).astype(np.int64)
     inside = (r >= 0) & (r < height) & (c >= 0) & (c < width)
-    out = np.full((len(r), 2), np.nan, np.float32)
+    out = np.full((len(r),) + table.shape[1:], np.nan, np.float32)
     out[inside] = table[r[inside] * width + c[inside]]
     return out
 
@@ -182,4 +210,4 @@ class FloorProjector:
         return lookup_table(self.table, self.camera.width, self.camera.height, rows, cols)
 
     def project(self, rows: np.ndarray, cols: np.ndarray) -> ProjectedHits:
-        return self.geometry.from_points(self.lookup(rows, cols))
+        return self.geometry.from_points(self.lookup(rows, cols), rows, cols)

@@ -23,7 +23,9 @@ def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | 
         f"{config.fit.tilt_sigma_deg} deg, model error {config.fit.range_sigma} m per m of range, symmetry "
         f"'{config.symmetry}' (half {config.half}); tracking motion filter: fit covariance x "
         f"{config.motion.measurement_scale}, acceleration noise {config.motion.accel_sigma_mps2} m/s^2, "
-        f"velocity decay {config.motion.velocity_tau_s} s. Weights sha256 `{manifest.weights_sha256[:16]}...`.",
+        f"velocity decay {config.motion.velocity_tau_s} s; thin-band bias "
+        f"{_knots(config.fit.band_bias_widths, config.fit.band_bias_samples)}. "
+        f"Weights sha256 `{manifest.weights_sha256[:16]}...`.",
         "",
         "Load: `courtloc.localizer.predictor.load_predictor(<this folder>)`. Its `track(hits, width, height, "
         "state, t)` runs the motion filter of the tracking numbers below (what the infer stage runs); "
@@ -45,7 +47,8 @@ def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | 
         *([report["build_command"]] if report.get("build_command") else []),
         "```",
         "",
-        "Tuned on one recording (edge offset, hit noise, model error per metre of range, then the motion "
+        "Tuned on one recording (edge offset with its thin-band bias measured at the true poses, hit noise, "
+        "model error per metre of range, then the motion "
         "filter's noise: small grids, each scored by tracking the whole tuning recording; lowest p95 wins; the "
         "tilt prior is fixed), tested on the other: *tracking* = every frame in time order with the motion "
         "filter (prediction from the past frames, fused with the frame's fit by covariance; global search when "
@@ -74,3 +77,11 @@ def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | 
     lines += ["", "Targets, as computed from the table:", *verdict, "",
               "Times here are Python wall times on a shared, loaded machine; use `courtloc bench localize`.", ""]
     return "\n".join(lines) + "\n"
+
+
+def _knots(widths: list[float], samples: list[float]) -> str:
+    """The thin-band bias curve in words: off, or width -> offset pairs (both in scan steps)."""
+    if not widths:
+        return "off"
+    pairs = ", ".join(f"{w:g}: {v:+.2f}" for w, v in zip(widths, samples))
+    return f"(band width -> hit offset, scan steps) {pairs}"

@@ -1,6 +1,7 @@
 """Cross-recording evaluation of the geometric localizer on seed-format data (tune on one, test on the other).
 
-What is tuned, on the tuning recording only, each setting by tracking that whole recording in time
+What is tuned, on the tuning recording only: per edge offset, the thin-band bias measured at the
+recording's true poses (band_bias.calibrate); then each setting by tracking that whole recording in time
 order as the robot would (lowest p95 error wins, then the lowest mean): first numbers the camera
 fit cannot give — the scan's edge offset (pixels), the hit noise (pixels), the model error per metre
 of range (the prior on the body's per-frame tilt is in the grid too, one value since 0 and 0.2-0.3
@@ -25,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from courtloc.localizer import band_bias
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.geometric import GeometricLocalizer
@@ -131,13 +133,28 @@ def _track_score(court: Court, camera: CameraModel, frames: SeedFrames, indices:
     return {"mean_err_m": float(np.mean(errs)), "p95_err_m": float(np.percentile(errs, 95)), "n": len(errs)}
 
 
+def band_bias_knots(camera: CameraModel, frames: SeedFrames, indices: np.ndarray, field: CourtField,
+                    cfg: LocalizerConfig) -> tuple[list[float], list[float]]:
+    """The thin-band bias (band_bias.py) measured on `indices` at their true poses, for cfg's edge offset."""
+    projector = FloorProjector(camera, cfg.edge_offset_px, cfg.max_range_m)
+    pairs = ((projector.project(frames.hits[i][:, 0], frames.hits[i][:, 1]), frames.truth[i]) for i in indices)
+    return band_bias.calibrate(field, pairs, cfg.fit)
+
+
 def tune(court: Court, camera: CameraModel, frames: SeedFrames, indices: np.ndarray, field: CourtField,
-         base: LocalizerConfig) -> tuple[LocalizerConfig, list[dict]]:
+         base: LocalizerConfig, calibrate_band_bias: bool = True) -> tuple[LocalizerConfig, list[dict]]:
     """Grid over (edge offset, pixel sigma, tilt prior, range sigma), then over the motion filter's (measurement
     scale, acceleration noise), each scored by tracking `indices` (one recording, time order): lowest
     p95 error wins, then the lowest mean. The tail is the target; a mean alone lets a few lost frames
-    decide."""
+    decide. With `calibrate_band_bias`, each edge offset's thin-band bias is first measured on the same
+    recording's labelled frames (band_bias.calibrate) and every candidate fits with it."""
     table = []
+    knots = {}
+    for offset in EDGE_OFFSETS_PX:
+        cfg = base.model_copy(deep=True)
+        cfg.edge_offset_px = offset
+        knots[offset] = band_bias_knots(camera, frames, indices, field, cfg) if calibrate_band_bias else ([], [])
+        log.info("band bias at edge offset %.2f px: widths %s steps, offsets %s steps", offset, *knots[offset])
 
     def pick(configs: list[tuple[dict, LocalizerConfig]]) -> LocalizerConfig:
         best: tuple[tuple[float, float], LocalizerConfig] | None = None
@@ -157,6 +174,7 @@ def tune(court: Court, camera: CameraModel, frames: SeedFrames, indices: np.ndar
         cfg.fit.pixel_sigma = sigma
         cfg.fit.tilt_sigma_deg = tilt
         cfg.fit.range_sigma = per_m
+        cfg.fit.band_bias_widths, cfg.fit.band_bias_samples = knots[offset]
         fit_grid.append(({"edge_offset_px": offset, "pixel_sigma": sigma, "tilt_sigma_deg": tilt,
                           "range_sigma": per_m}, cfg))
     chosen = pick(fit_grid)
@@ -215,7 +233,8 @@ def chosen_settings(cfg: LocalizerConfig) -> dict:
     return {"edge_offset_px": cfg.edge_offset_px, "pixel_sigma": cfg.fit.pixel_sigma,
             "tilt_sigma_deg": cfg.fit.tilt_sigma_deg, "range_sigma": cfg.fit.range_sigma,
             "measurement_scale": cfg.motion.measurement_scale,
-            "accel_sigma_mps2": cfg.motion.accel_sigma_mps2}
+            "accel_sigma_mps2": cfg.motion.accel_sigma_mps2,
+            "band_bias_widths": list(cfg.fit.band_bias_widths), "band_bias_samples": list(cfg.fit.band_bias_samples)}
 
 
 def apply_settings(base: LocalizerConfig, chosen: dict) -> LocalizerConfig:
@@ -227,11 +246,13 @@ def apply_settings(base: LocalizerConfig, chosen: dict) -> LocalizerConfig:
     cfg.fit.range_sigma = chosen.get("range_sigma", cfg.fit.range_sigma)
     cfg.motion.measurement_scale = chosen.get("measurement_scale", cfg.motion.measurement_scale)
     cfg.motion.accel_sigma_mps2 = chosen.get("accel_sigma_mps2", cfg.motion.accel_sigma_mps2)
+    cfg.fit.band_bias_widths = chosen.get("band_bias_widths", cfg.fit.band_bias_widths)
+    cfg.fit.band_bias_samples = chosen.get("band_bias_samples", cfg.fit.band_bias_samples)
     return cfg
 
 
 def cross_recording(court: Court, camera: CameraModel, frames: SeedFrames, base: LocalizerConfig | None = None,
-                    cold_step: int = 20) -> dict:
+                    cold_step: int = 20, calibrate_band_bias: bool = True) -> dict:
     """Both directions of tune-on-one / test-on-the-other; returns a JSON-ready report."""
     base = base or LocalizerConfig()
     field = CourtField.from_court(court, base.field_resolution_m)
@@ -242,7 +263,7 @@ def cross_recording(court: Court, camera: CameraModel, frames: SeedFrames, base:
     for tune_rec, test_rec in (recordings, recordings[::-1]):
         tune_idx = np.nonzero(frames.recordings == tune_rec)[0]
         test_idx = np.nonzero(frames.recordings == test_rec)[0]
-        cfg, table = tune(court, camera, frames, tune_idx, field, base)
+        cfg, table = tune(court, camera, frames, tune_idx, field, base, calibrate_band_bias)
         localizer = GeometricLocalizer(court, camera, cfg, field=field)
         projector = FloorProjector(camera, cfg.edge_offset_px, cfg.max_range_m)
         tracked = run_sequence(localizer, projector, frames, test_idx, tracking=True)

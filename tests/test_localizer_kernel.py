@@ -59,7 +59,8 @@ def _assert_same(ref, got):
             np.testing.assert_allclose(b.covariance, a.covariance, rtol=1e-8, atol=1e-15)
 
 
-@pytest.mark.parametrize("variant", ["default", "no_tilt", "range_sigma", "all_huber", "few_iterations"])
+@pytest.mark.parametrize("variant", ["default", "no_tilt", "range_sigma", "all_huber", "few_iterations",
+                                     "band_bias"])
 def test_kernel_fit_equals_numpy_fit(setup, variant):
     court, _, localizer, projector, raw = setup
     cfg = LocalizerConfig()
@@ -73,11 +74,14 @@ def test_kernel_fit_equals_numpy_fit(setup, variant):
         cfg.fit.huber_iterations = 10
     elif variant == "few_iterations":
         iterations = 2
+    elif variant == "band_bias":  # knots below, between and above the widths the frames' bands have
+        cfg.fit.band_bias_widths = [0.5, 1.0, 1.5, 3.0]
+        cfg.fit.band_bias_samples = [0.6, 0.5, 0.2, -0.1]
     rng = np.random.default_rng(7)
     frames = [(np.array(p), projector.project(h[:, 0], h[:, 1])) for p, h in raw.items()]
     pose, degenerate = _parallel_only(court, localizer)
     frames.append((np.array(pose), degenerate))
-    n_valid = 0
+    n_valid = n_moved = 0
     for pose, hits in frames:
         # Near, turned, far off (different stopping iterations) and a batch of random ones.
         starts = np.vstack([pose + (0.04, -0.03, 0.01), pose + (0, 0, 0.15), pose + (0, 0, -0.15),
@@ -90,7 +94,11 @@ def test_kernel_fit_equals_numpy_fit(setup, variant):
             got = fit_poses(localizer.field, hits, starts, cfg.fit, cfg.quality, iterations)
         _assert_same(ref, got)
         n_valid += sum(r.valid for r in ref)
+        if cfg.fit.band_bias_widths:  # the bias must be in play, not a no-op both paths agree on
+            plain = fit_poses(localizer.field, hits, starts, LocalizerConfig().fit, cfg.quality, iterations)
+            n_moved += max(abs(a.pose[0] - b.pose[0]) + abs(a.pose[1] - b.pose[1]) for a, b in zip(ref, plain)) > 1e-4
     assert n_valid >= len(frames)  # the comparison covers converged fits, not only failures
+    assert n_moved >= (len(frames) - 1 if cfg.fit.band_bias_widths else 0)
     # The degenerate frame: invalid, with the huge position std the normal matrix implies, in both paths.
     assert not got[0].valid and got[0].position_std_m > cfg.quality.max_position_std_m
 
@@ -121,10 +129,11 @@ def test_hit_geometry_equals_table_lookup_and_numpy_geometry(setup):
                                                             [10, camera.width, 0, 0], [100, 100, 0, 0]])])
     hits = np.ascontiguousarray(hits[:, :4], np.int16)
     ref = localizer.geometry.from_points(lookup_table(projector.table, camera.width, camera.height, hits[:, 0],
-                                                      hits[:, 1]))
+                                                      hits[:, 1]), hits[:, 0], hits[:, 1])
     got = localizer.geometry.from_table(projector.table, hits)
     assert len(got) == len(ref) and len(ref) < len(hits) - 3  # out of image / above the horizon dropped
     np.testing.assert_allclose(got.packed, ref.packed, rtol=1e-13, atol=1e-15)
+    assert np.all(got.step_m > 0)  # every hit seeing floor knows its scan step
     np.testing.assert_array_equal(got.points, ref.points)
     np.testing.assert_array_equal(got.cview, ref.view_dirs[:, 0] + 1j * ref.view_dirs[:, 1])
 
@@ -186,7 +195,7 @@ def test_kernel_rejects_malformed_buffers(setup):
     hits = projector.project(raw[POSES[0]][:, 0], raw[POSES[0]][:, 1])
     cfg = localizer.config.fit
     config = (cfg.pixel_sigma, cfg.floor_sigma_m, cfg.range_sigma, 1.0, cfg.tukey_c, cfg.huber_c,
-              cfg.huber_iterations, 6, cfg.max_residual_m, cfg.gate_cos, cfg.step_tol_m, 3.0, True)
+              cfg.huber_iterations, 6, cfg.max_residual_m, cfg.gate_cos, cfg.step_tol_m, 3.0, True, (), (), 0.1)
     starts = np.zeros((2, 3))
     with pytest.raises(ValueError, match="hits"):
         kernel.fit(kf, hits.packed[:, :11].copy(), 0.0, 0.0, 1.0, starts, np.empty((2, 20)), config)
@@ -198,6 +207,15 @@ def test_kernel_rejects_malformed_buffers(setup):
         kernel.fit(kf, hits.packed, 0.0, 0.0, 1.0, starts, np.empty((2, 20)), config[:-1])
     with pytest.raises(ValueError, match="values"):
         kernel.Field(np.zeros((4, 4)), None, 4, 4, 0.0, 0.0, 0.01)
+    with pytest.raises(ValueError, match="band-bias"):  # unequal knot tuples
+        kernel.fit(kf, hits.packed, 0.0, 0.0, 1.0, starts, np.empty((2, 20)), config[:13] + ((1.0, 2.0), (0.5,), 0.1))
+    with pytest.raises(ValueError, match="increase"):
+        kernel.fit(kf, hits.packed, 0.0, 0.0, 1.0, starts, np.empty((2, 20)),
+                   config[:13] + ((2.0, 1.0), (0.5, 0.1), 0.1))
+    steps = np.zeros(16, np.float32)
     with pytest.raises(ValueError, match="table"):
-        kernel.hit_geometry(np.zeros((10, 2), np.float32), 4, 4, np.zeros((1, 4), np.int16), 0.0, 0.0, 1.0, 0.0,
-                            0.0, 1.0, 1.0, np.empty((1, 12)))
+        kernel.hit_geometry(np.zeros((10, 2), np.float32), steps, 4, 4, np.zeros((1, 4), np.int16), 0.0, 0.0, 1.0,
+                            0.0, 0.0, 1.0, 1.0, np.empty((1, 12)))
+    with pytest.raises(ValueError, match="steps"):
+        kernel.hit_geometry(np.zeros((16, 2), np.float32), steps[:10], 4, 4, np.zeros((1, 4), np.int16), 0.0, 0.0,
+                            1.0, 0.0, 0.0, 1.0, 1.0, np.empty((1, 12)))
