@@ -81,7 +81,8 @@ class GeometricLocalizer:
         self.search = CoarseSearch(self.field, court.area_half_extent_m, self.config.search)
 
     def localize_points(self, floor_points: np.ndarray, previous: np.ndarray | None = None) -> LocalizeResult:
-        """Pose from (N, 2) robot-frame floor points (NaN rows ignored)."""
+        """Pose from (N, 2) robot-frame floor points (NaN rows ignored). Points carry no pixels, hence no scan
+        step: the thin-band bias (band_bias.py) is not applied to them."""
         return self.localize(self.geometry.from_points(floor_points), previous)
 
     def localize(self, hits: ProjectedHits, previous: np.ndarray | None = None,
