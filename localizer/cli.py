@@ -65,7 +65,7 @@ def _build(args: argparse.Namespace) -> int:
                                         "error and the tracker's motion noise tuned per recording (see README); "
                                         "court and camera from the digital twin")
     manifest = build_package(args.out, court, camera, config, args.name, args.version, metrics, data)
-    (args.out / "README.md").write_text(markdown_report(manifest, config, report))
+    (args.out / "README.md").write_text(markdown_report(manifest, config, report, args.out))
     print(json.dumps({"out": str(args.out), "name": manifest.name, "weights_sha256": manifest.weights_sha256}))
     return 0
 

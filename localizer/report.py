@@ -1,8 +1,14 @@
-"""The package README: what the package is and its cross-recording numbers (from a crosseval JSON)."""
+"""The package README: what the package is, its cross-recording numbers (from a crosseval JSON) and, when the
+package folder holds one, the evaluation report of the package itself (`report/`: `courtloc eval` JSON + plots)."""
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.manifest import Manifest
+
+REPORT_DIR = "report"
 
 
 def _row(name: str, m: dict, extra: str = "") -> str:
@@ -10,7 +16,8 @@ def _row(name: str, m: dict, extra: str = "") -> str:
             f"{m['p95_err_m'] * 100:.2f} | {m.get('yaw_median_deg', float('nan')):.3f} | {extra} |")
 
 
-def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | None) -> str:
+def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | None,
+                    folder: Path | None = None) -> str:
     lines = [
         f"# {manifest.name} v{manifest.version}: geometric court localizer",
         "",
@@ -32,8 +39,9 @@ def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | 
         "`predict(previous=...)` tracks frame by frame without it.",
         "",
     ]
+    evaluation = _evaluation_section(folder / REPORT_DIR, config, report) if folder is not None else []
     if not report:
-        lines.append("No evaluation attached.")
+        lines += evaluation or ["No evaluation attached."]
         return "\n".join(lines) + "\n"
     lines += [
         "## Cross-recording evaluation",
@@ -75,8 +83,41 @@ def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | 
         verdict.append(f"- {d['tuned_on']} -> {d['tested_on']} (tracking, all frames): "
                        + ", ".join(f"{k} {'met' if v else 'NOT met'}" for k, v in met.items()))
     lines += ["", "Targets, as computed from the table:", *verdict, "",
-              "Times here are Python wall times on a shared, loaded machine; use `courtloc bench localize`.", ""]
+              "Times here are Python wall times on a shared, loaded machine; use `courtloc bench localize`.", "",
+              *evaluation]
     return "\n".join(lines) + "\n"
+
+
+def _evaluation_section(report_dir: Path, config: LocalizerConfig, report: dict | None) -> list[str]:
+    """This package's own `courtloc eval` runs (report/eval_<recording>.json) and the plots beside them."""
+    from courtloc.localizer.seed_eval import chosen_settings
+
+    runs = sorted(report_dir.glob("eval_*.json"))
+    if not runs:
+        return []
+    tuned_on = [d["tuned_on"] for d in (report or {}).get("directions", []) if d["chosen"] == chosen_settings(config)]
+    lines = ["## Evaluation report of this package", "",
+             "`courtloc eval` of this folder: tracking every frame in time order as the infer stage does (motion "
+             "filter, frame times from the file names), labels as recorded (no lag correction). "
+             + (f"Its settings are the ones crosseval tuned on {tuned_on[0]}, so any other recording is held out."
+                if tuned_on else "Which recording its settings were tuned on is not in the crosseval report."),
+             "", "```"]
+    for path in runs:
+        rec = path.stem.removeprefix("eval_")
+        lines.append(f"courtloc eval --data <shared>/datasets/seed-gazebo --recordings {rec} --model <this folder> "
+                     f"--json {REPORT_DIR}/{path.name} --plots {REPORT_DIR}")
+    lines += ["```", "", "| recording | n | mean cm | median cm | p95 cm | yaw median deg | notes |",
+              "|---|---|---|---|---|---|---|"]
+    for path in runs:
+        rec = path.stem.removeprefix("eval_")
+        lines.append(_row(rec, json.loads(path.read_text()), "tuning recording" if rec in tuned_on else "held out"))
+    lines.append("")
+    for png in sorted(report_dir.glob("*.png")):
+        lines += [f"![{png.stem.replace('_', ' ')}]({REPORT_DIR}/{png.name})", ""]
+    if (report_dir / "predictions.csv").is_file():
+        lines += [f"Per-frame truth and prediction: `{REPORT_DIR}/predictions.csv`.", ""]
+    lines += [f"`{REPORT_DIR}/` is documentation: `courtloc model push` sends a package's top-level files only.", ""]
+    return lines
 
 
 def _knots(widths: list[float], samples: list[float]) -> str:
