@@ -70,6 +70,14 @@ def _build(args: argparse.Namespace) -> int:
     return 0
 
 
+def _fingerprint(args: argparse.Namespace) -> str:
+    """Dataset.fingerprint of the frames crosseval used (every step-th), for the package manifest."""
+    from courtloc.localizer.datasets import load_dataset
+
+    dataset = load_dataset(args.data, args.csv, kind="dots")
+    return dataset.fingerprint(range(0, len(dataset), args.step))
+
+
 def _crosseval(args: argparse.Namespace) -> int:
     from courtloc.localizer.seed_eval import apply_settings, cross_recording, load_seed_frames
     from courtloc.sim.camera import load_camera
@@ -80,7 +88,7 @@ def _crosseval(args: argparse.Namespace) -> int:
     report = cross_recording(load_court(args.court), load_camera(args.camera), frames, base,
                              cold_step=args.cold_step, calibrate_band_bias=not args.no_band_bias)
     report.update({"data": args.data.name, "lag_s": args.lag_s, "step": args.step, "n_frames": len(frames.hits),
-                   "court": args.court, "camera": args.camera})
+                   "court": args.court, "camera": args.camera, "fingerprint": _fingerprint(args)})
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=1))
     if args.config_out:

@@ -63,6 +63,18 @@ class PreprocessSpec(_Strict):
     scale: str = "0/1 dot image as float32 in [0, 1]"
 
 
+def runtime_preprocessing(width: int = 640, height: int = 480, crop_top: int = 200) -> PreprocessSpec:
+    """The preprocess stage's own defaults for a width x height frame, so that a manifest states what the
+    robot will do (the scan origin is the last row's centre: where the seed images' rays start, see
+    docs/preprocess.md)."""
+    from courtloc.services.preprocess.config import DEFAULT_HSV_RANGES, ScanConfig
+
+    scan = ScanConfig()
+    return PreprocessSpec(frame_width=width, frame_height=height, crop_top=crop_top,
+                          hsv_ranges=[HsvRange(lower=r.lower, upper=r.upper) for r in DEFAULT_HSV_RANGES],
+                          scan_step_deg=scan.angle_step_deg, scan_origin=scan.origin_for(height, width))
+
+
 class OutputSpec(_Strict):
     name: str
     components: list[str]

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.manifest import (InputSpec, Manifest, ManifestError, OutputSpec, TensorSpec, TrainingData,
-                                         attach_manifest, read_manifest, verify_weights)
+                                         attach_manifest, read_manifest, runtime_preprocessing, verify_weights)
 from courtloc.localizer.onnx_graph import INPUT, OUTPUT, build_graph
 from courtloc.localizer.projection import build_floor_table
 from courtloc.sim.camera import CameraModel, load_camera
@@ -58,6 +58,7 @@ def build_package(out_dir: Path, court: Court, camera: CameraModel, config: Loca
         input=InputSpec(kind="scan_hits", description="radial-scan hits of one frame, full-frame pixel "
                         "coordinates (row, col, ray, d), as on the preprocess stage's Edges message",
                         tensors=[TensorSpec(name=INPUT, dtype="int16", shape=["K", 4])]),
+        preprocessing=runtime_preprocessing(camera.width, camera.height),
         court=court.name, camera=camera.name,
         outputs=[OutputSpec(name=OUTPUT, components=["x_robot", "y_robot"], units=["m", "m"])],
         training_data=training_data, metrics=metrics or {},

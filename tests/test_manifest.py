@@ -81,3 +81,15 @@ def test_missing_and_bad_manifest(tmp_path: Path) -> None:
         read_manifest(path)
     with pytest.raises(ManifestError, match="not found"):
         read_manifest(tmp_path / "nope.onnx")
+
+
+def test_bundled_package_states_the_runtime_preprocessing_and_its_data() -> None:
+    from courtloc.localizer.eval import default_model_path
+    from courtloc.services.preprocess.config import DEFAULT_HSV_RANGES, ScanConfig
+
+    manifest = read_manifest(default_model_path() / "model.onnx")
+    pre = manifest.preprocessing
+    assert [(r.lower, r.upper) for r in pre.hsv_ranges] == [(r.lower, r.upper) for r in DEFAULT_HSV_RANGES]
+    assert pre.scan_step_deg == ScanConfig().angle_step_deg and (pre.frame_width, pre.frame_height) == (640, 480)
+    data = manifest.training_data
+    assert data is not None and len(data.fingerprint) == 64 and data.recordings == ["20250622", "20250625"]

@@ -9,8 +9,8 @@ import numpy as np
 import onnx
 import torch
 
-from courtloc.localizer.manifest import (HsvRange, InputSpec, Manifest, OutputSpec, PreprocessSpec,
-                                         TensorSpec, TrainingData, attach_manifest)
+from courtloc.localizer.manifest import (InputSpec, Manifest, OutputSpec, TensorSpec, TrainingData,
+                                         attach_manifest, runtime_preprocessing)
 from courtloc.training import paper_onnx
 
 log = logging.getLogger(__name__)
@@ -53,18 +53,6 @@ def _shape_from_pixels(n_pixels: int, width: int = 640) -> tuple[int, int]:
     return n_pixels // width, width
 
 
-def _preprocessing(crop_top: int, height: int, width: int) -> PreprocessSpec:
-    # The runtime's own defaults, so the manifest states what the robot will do (the scan origin is
-    # the last row's centre: that is where the seed images' rays start, see docs/preprocess.md).
-    from courtloc.services.preprocess.config import DEFAULT_HSV_RANGES, ScanConfig
-
-    ranges = [HsvRange(lower=r.lower, upper=r.upper) for r in DEFAULT_HSV_RANGES]
-    scan = ScanConfig()
-    return PreprocessSpec(frame_width=width, frame_height=height + crop_top, hsv_ranges=ranges,
-                          crop_top=crop_top, scan_step_deg=scan.angle_step_deg,
-                          scan_origin=scan.origin_for(height + crop_top, width))
-
-
 def paper_manifest(kind: str, summary: dict, height: int, width: int, crop_top: int, name: str,
                    version: int, court: str, camera: str) -> Manifest:
     if kind == "dense":
@@ -78,7 +66,7 @@ def paper_manifest(kind: str, summary: dict, height: int, width: int, crop_top: 
                                     TensorSpec(name=paper_onnx.SPARSE_VALUES, dtype="float32", shape=["K"])])
     return Manifest(
         name=f"{name}-{kind}", version=version, input=inputs,
-        preprocessing=_preprocessing(crop_top, height, width), court=court, camera=camera,
+        preprocessing=runtime_preprocessing(width, height + crop_top, crop_top), court=court, camera=camera,
         outputs=[OutputSpec(name=paper_onnx.OUTPUT, components=["x", "y"], units=["m", "m"])],
         training_data=TrainingData(fingerprint=summary.get("train_fingerprint", ""),
                                    recordings=summary.get("train_recordings", []),
