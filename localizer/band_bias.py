@@ -53,12 +53,12 @@ def band_samples(field: CourtField, hits: ProjectedHits, pose: np.ndarray,
     params[0, :3] = pose[:3]
     d, j, usable = _residuals(field, _FrameTerms(hits, plain), params, plain, tilt=False)
     d, gx, gy = d[0], j[0, 0], j[0, 1]
-    ray = hits.cray * np.exp(1j * pose[2])
+    rot = np.exp(1j * pose[2])
+    ray = hits.cray * rot
     ray_cos = (gx * ray.real + gy * ray.imag) / (np.hypot(gx, gy) + 1e-300)
     step_n = hits.step_m * np.abs(ray_cos)
-    x = (hits.cpoints * np.exp(1j * pose[2])).real + pose[0]
-    y = (hits.cpoints * np.exp(1j * pose[2])).imag + pose[1]
-    hw = field.nearest(x, y, field.half_width)
+    court = hits.cpoints * rot + complex(pose[0], pose[1])
+    hw = field.nearest(court.real, court.imag, field.half_width)
     keep = usable[0] & (hw > 0) & (hw < THIN_BAND_HALF_WIDTH_M) & (step_n > 0)
     return 2.0 * hw[keep] / step_n[keep], d[keep] / step_n[keep]
 
