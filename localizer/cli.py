@@ -1,4 +1,5 @@
-"""`courtloc localizer build|crosseval`: build a geometric-localizer package; evaluate it across recordings."""
+"""`courtloc localizer build|crosseval|residuals`: build a geometric-localizer package; evaluate it across
+recordings; show where its residual model is off on labelled frames."""
 from __future__ import annotations
 
 import argparse
@@ -37,6 +38,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     cross.add_argument("--no-band-bias", action="store_true",
                        help="do not calibrate the thin-band bias (docs/localizer.md): the fit assumes none")
     cross.set_defaults(func=_crosseval)
+
+    resid = ops.add_parser("residuals", help="median hit residual at the true poses, by paint kind and range")
+    resid.add_argument("--data", type=Path, required=True, help="seed-format folder (images/ + pose_data.csv)")
+    resid.add_argument("--csv", type=Path)
+    resid.add_argument("--model", type=Path, help="localizer package folder (default: the bundled one)")
+    resid.add_argument("--lag-s", type=float, default=0.0147, help="label lag behind the image (0: raw labels)")
+    resid.add_argument("--step", type=int, default=3, help="use every step-th frame")
+    resid.add_argument("--no-band-bias", action="store_true", help="the package's config with the thin-band bias off")
+    resid.add_argument("--json", type=Path)
+    resid.set_defaults(func=_residuals)
 
 
 def _config(path: Path | None):
@@ -103,4 +114,33 @@ def _crosseval(args: argparse.Namespace) -> int:
               f"mean={t['mean_err_m']:.4f} median={t['median_err_m']:.4f} p95={t['p95_err_m']:.4f} "
               f"yaw_med={t['yaw_median_deg']:.3f} deg valid={d['tracking']['valid_fraction']:.3f} "
               f"ms={d['tracking']['ms_median']} | cold n={c['n']} mean={c['mean_err_m']:.4f} p95={c['p95_err_m']:.4f}")
+    return 0
+
+
+def _residuals(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from courtloc.localizer.court_field import CourtField
+    from courtloc.localizer.eval import default_model_path
+    from courtloc.localizer.package import load_package
+    from courtloc.localizer.residuals import residual_table
+    from courtloc.localizer.seed_eval import load_seed_frames
+
+    package = load_package(args.model or default_model_path())
+    config = package.config
+    if args.no_band_bias:
+        config.fit.band_bias_widths, config.fit.band_bias_samples = [], []
+    field = CourtField.from_court(package.court, config.field_resolution_m)
+    frames = load_seed_frames(args.data, args.csv, args.lag_s, args.step)
+    out = {}
+    for rec in sorted(np.unique(frames.recordings).tolist()):
+        rows = residual_table(package.camera, field, config, frames, np.nonzero(frames.recordings == rec)[0])
+        out[rec] = rows
+        print(f"recording {rec}: kind, range m, hits, median cm, mean cm")
+        for r in rows:
+            print(f"  {r['kind']:10s} {r['range_m'][0]:4.0f}-{r['range_m'][1]:<4.0f} {r['n']:7d} "
+                  f"{r['median_cm']:+7.2f} {r['mean_cm']:+7.2f}")
+    if args.json:
+        args.json.write_text(json.dumps({"band_bias": not args.no_band_bias, "step": args.step,
+                                         "recordings": out}, indent=1))
     return 0
