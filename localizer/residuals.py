@@ -23,7 +23,8 @@ MIN_HITS = 30
 def residual_table(camera: CameraModel, field: CourtField, cfg: LocalizerConfig, frames: SeedFrames,
                    indices: np.ndarray) -> list[dict]:
     """One row per (paint kind, range bin) with at least MIN_HITS usable hits: n, median and mean
-    residual (cm). Kinds: 'thin band' (a line under 2 x THIN_BAND_HALF_WIDTH_M wide), 'wide paint'."""
+    residual (cm). Kinds: 'thin band' (a line under 2 x THIN_BAND_HALF_WIDTH_M wide), 'other' (wide paint
+    such as a floor's far edge, or no band within reach: unmodelled white things)."""
     from courtloc.localizer.fit import _FrameTerms, _residuals
 
     projector = FloorProjector(camera, cfg.edge_offset_px, cfg.max_range_m)
@@ -44,7 +45,7 @@ def residual_table(camera: CameraModel, field: CourtField, cfg: LocalizerConfig,
         values.append(d[0, keep])
     thin, rng, res = (np.concatenate(a) if a else np.zeros(0) for a in (kinds, ranges, values))
     rows = []
-    for kind, sel_kind in (("thin band", thin.astype(bool)), ("wide paint", ~thin.astype(bool))):
+    for kind, sel_kind in (("thin band", thin.astype(bool)), ("other", ~thin.astype(bool))):
         for lo, hi in zip(RANGE_EDGES_M, RANGE_EDGES_M[1:]):
             sel = sel_kind & (rng >= lo) & (rng < hi)
             if np.count_nonzero(sel) >= MIN_HITS:
