@@ -1,3 +1,3 @@
-from courtloc.cli import main
+from courtloc.cli import run
 
-main()
+run()

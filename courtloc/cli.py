@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 from typing import Sequence
 
@@ -45,3 +46,29 @@ def main(argv: Sequence[str] | None = None) -> None:
         sys.exit(2)
     code = args.func(args)
     sys.exit(int(code or 0))
+
+
+def run() -> None:
+    """The process entry point (`courtloc`, `python -m courtloc`): `main`, then exit without finalizing the
+    interpreter.
+
+    When a command returns it has closed its zenoh session, but zenoh's own threads may still be releasing
+    the Python callbacks they held, which needs the GIL. A thread that asks for the GIL while the interpreter
+    finalizes is ended inside Rust frames, and glibc aborts the whole process ("FATAL: exception not
+    rethrown", exit -6 instead of 0): seen on `courtloc monitor` stopping under load. So the exit code,
+    streams and log handlers are settled here and the process ends directly. In-process callers (tests)
+    use `main`, which raises SystemExit as usual.
+    """
+    try:
+        main()
+        code = 0
+    except SystemExit as exc:
+        if exc.code is None or isinstance(exc.code, int):
+            code = int(exc.code or 0)
+        else:  # what the interpreter does with SystemExit("message")
+            print(exc.code, file=sys.stderr)
+            code = 1
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
