@@ -23,7 +23,7 @@ from typing import Iterable
 import numpy as np
 
 from courtloc.localizer.config import FitConfig
-from courtloc.localizer.court_field import THIN_BAND_HALF_WIDTH_M, CourtField
+from courtloc.localizer.court_field import CourtField, is_thin_band
 from courtloc.localizer.projection import ProjectedHits
 
 # Bins of band width in steps for the calibration; their centres become the knots. Past 4 steps a band
@@ -38,29 +38,21 @@ def offset_m(half_width: np.ndarray, step_normal_m: np.ndarray, cfg: FitConfig) 
     normal (0: unknown -> 0)."""
     width_steps = 2.0 * half_width / np.maximum(step_normal_m, 1e-9)
     offset = np.interp(width_steps, cfg.band_bias_widths, cfg.band_bias_samples) * step_normal_m
-    return np.where((half_width > 0) & (half_width < THIN_BAND_HALF_WIDTH_M), offset, 0.0)
+    return np.where(is_thin_band(half_width), offset, 0.0)
 
 
 def band_samples(field: CourtField, hits: ProjectedHits, pose: np.ndarray,
                  cfg: FitConfig) -> tuple[np.ndarray, np.ndarray]:
     """(band width in steps, residual in steps) of the usable thin-band hits of one frame at `pose`, with
     the band bias off: what `calibrate` bins."""
-    # fit imports this module for offset_m; importing it at call time keeps the two free of a cycle.
-    from courtloc.localizer.fit import _FrameTerms, _residuals
+    # residuals imports fit, which imports this module for offset_m: imported at call time, no cycle.
+    from courtloc.localizer.residuals import residuals_at
 
     plain = cfg.model_copy(update={"band_bias_widths": [], "band_bias_samples": []})
-    params = np.zeros((1, 5))
-    params[0, :3] = pose[:3]
-    d, j, usable = _residuals(field, _FrameTerms(hits, plain), params, plain, tilt=False)
-    d, gx, gy = d[0], j[0, 0], j[0, 1]
-    rot = np.exp(1j * pose[2])
-    ray = hits.cray * rot
-    ray_cos = (gx * ray.real + gy * ray.imag) / (np.hypot(gx, gy) + 1e-300)
-    step_n = hits.step_m * np.abs(ray_cos)
-    court = hits.cpoints * rot + complex(pose[0], pose[1])
-    hw = field.nearest(court.real, court.imag, field.half_width)
-    keep = usable[0] & (hw > 0) & (hw < THIN_BAND_HALF_WIDTH_M) & (step_n > 0)
-    return 2.0 * hw[keep] / step_n[keep], d[keep] / step_n[keep]
+    at = residuals_at(field, hits, pose, plain)
+    keep = at.usable & is_thin_band(at.half_width) & (at.step_normal_m > 0)
+    step_n = at.step_normal_m[keep]
+    return 2.0 * at.half_width[keep] / step_n, at.d[keep] / step_n
 
 
 def calibrate(field: CourtField, frames: Iterable[tuple[ProjectedHits, np.ndarray]],

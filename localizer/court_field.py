@@ -155,6 +155,11 @@ class GridCell:
 THIN_BAND_HALF_WIDTH_M = 0.1
 
 
+def is_thin_band(half_width: np.ndarray) -> np.ndarray:
+    """Where a `band_half_width` value names a thin band (not wide paint, not 'no band')."""
+    return (half_width > 0) & (half_width < THIN_BAND_HALF_WIDTH_M)
+
+
 @dataclass(frozen=True)
 class CourtField:
     """Signed distance samples on a regular grid: value[i, j] at (x0 + j * res, y0 + i * res)."""

@@ -123,14 +123,17 @@ def _residuals(field: CourtField, terms: _FrameTerms, params: np.ndarray, cfg: F
     # Inside paint but nearer the edge the ray entered by: the hit belongs to the band's far edge,
     # (2 * half-width - depth) further along, so measure to that edge (gradient flips with it).
     flip = inside & (ray_cos < 0)
-    if field.half_width is not None and flip.any():
+    any_flip = bool(flip.any())
+    half = cell.nearest(field.half_width) if field.half_width is not None and (any_flip or cfg.band_bias_widths) \
+        else None
+    if half is not None and any_flip:
         # Whole arrays, not the flipped subset: boolean indexing costs more calls than it saves.
-        d = np.where(flip, -d - 2.0 * cell.nearest(field.half_width), d)
+        d = np.where(flip, -d - 2.0 * half, d)
         sign = 1.0 - 2.0 * flip
         gx = gx * sign
         gy = gy * sign
-    if field.half_width is not None and cfg.band_bias_widths:
-        d = d - band_bias.offset_m(cell.nearest(field.half_width), hits.step_m * np.abs(ray_cos), cfg)
+    if half is not None and cfg.band_bias_widths:
+        d = d - band_bias.offset_m(half, hits.step_m * np.abs(ray_cos), cfg)
     usable = (inside | (ray_cos >= cfg.gate_cos)) & (np.abs(d) < cfg.max_residual_m)
     inv_m = inv * inv_res  # 1/sigma and per-cell -> per-metre gradient in one factor
     j = np.empty((params.shape[0], 6, d.shape[1]))
