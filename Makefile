@@ -9,7 +9,7 @@ DEMO_SECONDS ?= 30
 .PHONY: demo test bench clean
 
 # The C sources are prerequisites so an existing venv recompiles the kernels after an edit.
-$(BIN)/courtloc-runtime: pyproject.toml services/preprocess/scan_kernel.c localizer/fit_kernel.c
+$(BIN)/courtloc-runtime: pyproject.toml scan/scan_kernel.c localizer/fit_kernel.c
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e .

@@ -3,7 +3,8 @@
 A stage subclasses `Service` and implements `on_message` (consumers) or `produce` (sources). The
 runtime owns everything else: the Zenoh session (opened with back-off, always closed), a liveliness
 token, publishers with the table's QoS, latest-only subscriptions handed to the worker thread,
-decoding with per-topic rejection counts, a health message every second, and SIGINT/SIGTERM.
+decoding with per-topic rejection counts, the stage's controls (queryables of the services table,
+answered by `on_control` on their own thread), a health message every second, and SIGINT/SIGTERM.
 """
 from __future__ import annotations
 
@@ -21,8 +22,10 @@ from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, declare_publisher, open_session
 from courtloc.common.inbox import Delivery, LatestInbox
 from courtloc.common.messages import Header, Health
-from courtloc.common.services_table import HEALTH_TOPICS, SERVICES, TOPICS, Topic, liveliness_key
+from courtloc.common.control_server import ControlServer
+from courtloc.common.services_table import CONTROLS, HEALTH_TOPICS, SERVICES, TOPICS, Control, Topic, liveliness_key
 from courtloc.common.stats import LatencyWindow, RateLimitedLog, RateMeter
+from courtloc.common.signals import stop_on_signals
 
 HEALTH_PERIOD_S = 1.0
 
@@ -65,6 +68,10 @@ class Service:
         """Source services override this: loop until `self.stop_event` is set (worker thread)."""
         self._consume()
 
+    def on_control(self, control: Control, request: BaseModel) -> BaseModel:
+        """Answer a request to one of this stage's controls (control thread); returns `control.reply`."""
+        raise NotImplementedError(f"{self.name} serves no control {control.path}")
+
     def on_stop(self) -> None:
         """Release devices and files; the session is still open."""
 
@@ -103,7 +110,7 @@ class Service:
     # ---- the runtime --------------------------------------------------------------------
     def run(self) -> int:
         """Run until SIGINT/SIGTERM; returns the process exit code."""
-        self._install_signal_handlers()
+        stop_on_signals(self.stop_event)
         self.session = open_session(self.zenoh_config, self.stop_event)
         if self.session is None:
             return 0
@@ -119,6 +126,9 @@ class Service:
         health_topic = HEALTH_TOPICS[self.name]
         self._publishers[health_topic.path] = declare_publisher(zsession, health_topic, self.robot_id)
         self.on_start()
+        own_controls = [c for c in CONTROLS.values() if c.service == self.name]
+        controls = ControlServer(zsession, own_controls, self.robot_id, self.on_control, self.reject,
+                                 self.record_error, self.stop_event, f"{self.name}-control") if own_controls else None
         subscribers = [
             zsession.declare_subscriber(TOPICS[path].key(self.robot_id), self._make_callback(path))
             for path in self.spec.inputs
@@ -143,6 +153,8 @@ class Service:
         health.join(timeout=2.0)
         for sub in subscribers:
             sub.undeclare()
+        if controls is not None:
+            controls.close()
         self.on_stop()
         token.undeclare()
         return 0
@@ -208,14 +220,3 @@ class Service:
             stale=self.stale, latency_ms_p50=p50, latency_ms_p99=p99, e2e_ms_p50=e50, e2e_ms_p99=e99,
             last_error=self.last_error, detail=detail,
         )
-
-    def _install_signal_handlers(self) -> None:
-        if threading.current_thread() is not threading.main_thread():
-            return
-
-        def request_stop(signum: int, _frame: object) -> None:
-            self.log.info("signal %d: shutting down", signum)
-            self.stop_event.set()
-
-        signal.signal(signal.SIGINT, request_stop)
-        signal.signal(signal.SIGTERM, request_stop)

@@ -9,12 +9,12 @@ import importlib
 
 BENCHES: dict[str, str] = {
     "pipeline": "courtloc.bench_pipeline",
-    "preprocess": "courtloc.services.preprocess.bench",
+    "preprocess": "courtloc.lab.bench_preprocess",
     "render": "courtloc.sim.bench_render",
-    "paper": "courtloc.localizer.model_bench",
-    "localize": "courtloc.localizer.bench",
+    "paper": "courtloc.lab.model_bench",
+    "localize": "courtloc.lab.bench_localize",
     "soak": "courtloc.bench_soak",
-    "infer": "courtloc.services.infer.bench",
+    "infer": "courtloc.lab.bench_infer",
 }
 
 

@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from courtloc.common.signals import stop_on_signals
 
 
 
@@ -77,8 +78,7 @@ def run(args: argparse.Namespace) -> int:
     config = load_deployment(args.config)
     argv = [sys.executable, "-m", "courtloc", "up", *(["--config", str(args.config)] if args.config else [])]
     up = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    stop = stop_on_signals()
     watcher = BusWatcher(config)
     watcher.start(stop)
     started = time.monotonic()

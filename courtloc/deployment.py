@@ -18,7 +18,7 @@ from courtloc.common.security import with_identity
 from courtloc.common.services_table import SERVICES, check_robot_id
 from courtloc.services.camera.config import CameraConfig
 from courtloc.services.infer.config import InferConfig
-from courtloc.services.preprocess.config import PreprocessConfig
+from courtloc.scan.config import PreprocessConfig
 from courtloc.services.shooter_bridge.config import ShooterConfig
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"

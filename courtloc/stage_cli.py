@@ -8,6 +8,7 @@ import signal
 import sys
 import threading
 from pathlib import Path
+from courtloc.common.signals import stop_on_signals
 
 log = logging.getLogger("courtloc.stage")
 
@@ -53,9 +54,7 @@ def run_router(args: argparse.Namespace) -> int:
     listen = args.listen or config.router.listen
     router_cfg = ZenohConfig(mode="router", connect=config.router.connect, listen=listen,
                              config_file=config.zenoh.config_file)
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_on_signals()
     try:
         zcfg = build_zenoh_config(router_cfg)
         if config.router.secure_dir is not None:

@@ -7,6 +7,7 @@ import signal
 import sys
 import threading
 from pathlib import Path
+from courtloc.common.signals import stop_on_signals
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,9 +32,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{args.config}: [launcher] services is empty: nothing to start here "
               "(this is a pit profile: use `courtloc monitor` or `courtloc model ...`)", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_on_signals()
     summary = run_up(config, args.duration, args.summary_json, stop)
     e2e = summary["e2e_latency_ms"]
     print(json.dumps({k: summary[k] for k in ("poses", "solutions", "drops", "rejected", "restarts")}))

@@ -69,7 +69,7 @@ def _sector_clip(x: np.ndarray, y: np.ndarray, cx: float, cy: float, semi: tuple
     return np.minimum(left_of_start, right_of_end)
 
 
-def _arc_sdf(x: np.ndarray, y: np.ndarray, line) -> np.ndarray:  # line: courtloc.sim.court.ArcLine
+def _arc_sdf(x: np.ndarray, y: np.ndarray, line) -> np.ndarray:  # line: courtloc.world.court.ArcLine
     cx, cy = line.centre
     a, b = line.semi_axes
     hx, hy = line.width_x / 2, line.width_y / 2

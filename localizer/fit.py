@@ -25,6 +25,7 @@ from courtloc.localizer import band_bias, fit_kernel
 from courtloc.localizer.config import FitConfig, QualityConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.projection import ProjectedHits
+from courtloc.world.angles import wrap_angle
 
 # The compiled kernel (fit_kernel.c) when it was built; this file's numpy code is the reference it is
 # tested against and the fallback without a compiler. A context variable, so that switching it for a
@@ -65,7 +66,7 @@ class FitResult:
     covariance: np.ndarray | None = None
 
 
-class _FrameTerms:
+class FrameTerms:
     """Per-frame constants of the residual model, computed once and shared by every start and iteration."""
 
     def __init__(self, hits: ProjectedHits, cfg: FitConfig) -> None:
@@ -80,7 +81,7 @@ class _FrameTerms:
         self.dpoint_ddep = -hits.camera_height / (s * s)
 
 
-def _residuals(field: CourtField, terms: _FrameTerms, params: np.ndarray, cfg: FitConfig, tilt: bool):
+def frame_residuals(field: CourtField, terms: FrameTerms, params: np.ndarray, cfg: FitConfig, tilt: bool):
     """For S poses at once (params (S, 5)): residual d (S, N) metres, a (S, 6, N) array holding the
     Jacobian rows (x, y, yaw, pitch, roll) / sigma and, as row 5, the normalised residual z = d / sigma
     (one matmul then gives both the normal matrix and the gradient), and the usable mask (S, N).
@@ -217,11 +218,11 @@ def _fit_poses_numpy(field: CourtField, hits: ProjectedHits, starts: np.ndarray,
     prior_k = prior[:k]
     eye = np.eye(k)
     prior_diag = np.diag(prior_k)
-    terms = _FrameTerms(hits, cfg)
+    terms = FrameTerms(hits, cfg)
     rows = np.r_[0:k, 5]  # the estimated parameters' Jacobian rows and z
     done = np.zeros(n_starts, bool)
     for it in range(max_it + 1):
-        d, j, usable = _residuals(field, terms, params, cfg, tilt)
+        d, j, usable = frame_residuals(field, terms, params, cfg, tilt)
         z = j[:, 5]
         if done.all() or it == max_it:
             break  # these residuals, at the final poses, feed the quality assessment below
@@ -240,7 +241,7 @@ def _fit_poses_numpy(field: CourtField, hits: ProjectedHits, starts: np.ndarray,
         step = -np.linalg.solve(h + damp[:, None, None] * eye, g[:, :, None])[:, :, 0]
         step[done] = 0.0
         params[:, :k] += step
-        params[:, 2] = (params[:, 2] + math.pi) % (2 * math.pi) - math.pi
+        params[:, 2] = wrap_angle(params[:, 2])
         done |= (np.hypot(step[:, 0], step[:, 1]) < cfg.step_tol_m) & (np.abs(step[:, 2]) < cfg.step_tol_m / 5.0)
     inl = usable & (np.abs(z) < quality.inlier_sigmas)
     n_in = np.count_nonzero(inl, axis=1)

@@ -24,8 +24,8 @@ from courtloc.localizer.fit import FitResult, fit_pose, fit_poses, quality_score
 from courtloc.localizer.projection import HitGeometry, ProjectedHits
 from courtloc.localizer.search import CoarseSearch
 from courtloc.localizer.symmetry import by_half, by_previous, mirror
-from courtloc.sim.camera import CameraModel
-from courtloc.sim.court import Court
+from courtloc.world.camera import CameraModel
+from courtloc.world.court import Court
 
 
 # Restarts around the previous pose when the plain tracking fit fails: (dx m, dy m, dyaw rad).

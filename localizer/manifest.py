@@ -26,6 +26,8 @@ SCHEMA = "courtloc.manifest/1"
 # pixels; 'scan_hits': the radial scan's int16 [K, 4] (row, col, ray, d) hits (geometric localizer).
 # Extend this Literal when a new kind of model input appears.
 InputKind = Literal["dense_image", "sparse_hits", "scan_hits"]
+PAPER_KINDS: tuple[InputKind, ...] = ("dense_image", "sparse_hits")  # the paper network's two graphs
+MODEL_FILE = "model.onnx"  # the graph inside a model folder (a package or a store version)
 
 
 class _Strict(BaseModel):
@@ -67,7 +69,7 @@ def runtime_preprocessing(width: int = 640, height: int = 480, crop_top: int = 2
     """The preprocess stage's own defaults for a width x height frame, so that a manifest states what the
     robot will do (the scan origin is the last row's centre: where the seed images' rays start, see
     docs/preprocess.md)."""
-    from courtloc.services.preprocess.config import DEFAULT_HSV_RANGES, ScanConfig
+    from courtloc.scan.config import DEFAULT_HSV_RANGES, ScanConfig
 
     scan = ScanConfig()
     return PreprocessSpec(frame_width=width, frame_height=height, crop_top=crop_top,
@@ -82,7 +84,7 @@ class OutputSpec(_Strict):
 
 
 class TrainingData(_Strict):
-    fingerprint: str  # courtloc.localizer.datasets.Dataset.fingerprint over the training frames
+    fingerprint: str  # courtloc.lab.datasets.Dataset.fingerprint over the training frames
     recordings: list[str] = Field(default_factory=list)
     n_frames: int = 0
     description: str = ""

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from courtloc.localizer.config import MotionConfig
+from courtloc.world.angles import wrap_angle
 
 
 @dataclass(frozen=True)
@@ -47,10 +48,6 @@ class MotionState:
     def position_std_m(self) -> float:
         """Worst-direction position std of the state."""
         return math.sqrt(max(float(np.linalg.eigvalsh(self.cov[:2, :2])[-1]), 0.0))
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
 
 
 def measurement_cov(fit_cov: np.ndarray | None, cfg: MotionConfig) -> np.ndarray | None:
@@ -76,7 +73,7 @@ def start(pose: np.ndarray, fit_cov: np.ndarray | None, t: float | None, cfg: Mo
     cov[5, 5] = math.radians(cfg.initial_yaw_rate_dps) ** 2
     mean = np.zeros(6)
     mean[:3] = pose
-    mean[2] = _wrap(mean[2])
+    mean[2] = wrap_angle(mean[2])
     return MotionState(mean=mean, cov=cov, t=t, lost=0)
 
 
@@ -98,7 +95,7 @@ def predict(state: MotionState, t: float | None, cfg: MotionConfig) -> MotionSta
         f[0, 3] = f[1, 4] = f[2, 5] = cfg.velocity_tau_s * (1 - decay)
         f[3, 3] = f[4, 4] = f[5, 5] = decay
     mean = f @ state.mean
-    mean[2] = _wrap(mean[2])
+    mean[2] = wrap_angle(mean[2])
     q = np.zeros((6, 6))
     for i, sigma in ((0, cfg.accel_sigma_mps2), (1, cfg.accel_sigma_mps2), (2, math.radians(cfg.yaw_accel_sigma_dps2))):
         s2 = sigma * sigma
@@ -132,7 +129,7 @@ class Innovation:
 def innovation(state: MotionState, pose: np.ndarray, r: np.ndarray) -> Innovation:
     """The measured pose against a predicted state: residual, inverse covariance, chi-square."""
     nu = np.asarray(pose, np.float64)[:3] - state.mean[:3]
-    nu[2] = _wrap(nu[2])
+    nu[2] = wrap_angle(nu[2])
     s_inv = _inverse3(state.cov[:3, :3] + r)
     return Innovation(nu=nu, s_inv=s_inv, chi2=float(nu @ s_inv @ nu))
 
@@ -143,7 +140,7 @@ def update(state: MotionState, pose: np.ndarray, r: np.ndarray, innov: Innovatio
     innov = innov or innovation(state, pose, r)
     gain = state.cov[:, :3] @ innov.s_inv  # P H^T S^-1, H = [I 0]
     mean = state.mean + gain @ innov.nu
-    mean[2] = _wrap(mean[2])
+    mean[2] = wrap_angle(mean[2])
     ikh = np.eye(6)
     ikh[:, :3] -= gain
     cov = ikh @ state.cov @ ikh.T + gain @ r @ gain.T

@@ -1,81 +1,35 @@
 """A geometric-localizer package: one folder that is everything the robot needs to localise.
 
     model.onnx       hits -> floor points (the camera as a per-pixel table), manifest in metadata_props
-    court.json       the court model (courtloc.sim.court format): the distance field is built from it at load
-    camera.json      the camera model (courtloc.sim.camera format): the fit's per-hit error model
+    court.json       the court model (courtloc.world.court format): the distance field is built from it at load
+    camera.json      the camera model (courtloc.world.camera format): the fit's per-hit error model
     localizer.json   LocalizerConfig (robust fit, quality thresholds, search, symmetry mode)
     README.md        what it is and how well it did (evaluation report)
 
 The manifest names the three JSON files (extra.court_file ...) and carries their sha256, so a package
-whose parts do not belong together is refused at load.
+whose parts do not belong together is refused at load. Packages are built by `courtloc.lab.package_build`.
 """
 from __future__ import annotations
 
 import hashlib
 import json
-import logging
 from dataclasses import dataclass
 from pathlib import Path
 
 from courtloc.localizer.config import LocalizerConfig
-from courtloc.localizer.manifest import (InputSpec, Manifest, ManifestError, OutputSpec, TensorSpec, TrainingData,
-                                         attach_manifest, read_manifest, runtime_preprocessing, verify_weights)
-from courtloc.localizer.onnx_graph import INPUT, OUTPUT, build_graph
-from courtloc.localizer.projection import build_floor_table
-from courtloc.sim.camera import CameraModel, load_camera
-from courtloc.sim.court import Court, load_court
+from courtloc.localizer.manifest import MODEL_FILE, Manifest, ManifestError
+from courtloc.localizer.model_file import ModelFile
+from courtloc.world.camera import CameraModel, load_camera
+from courtloc.world.court import Court, load_court
 
-log = logging.getLogger(__name__)
-
-MODEL_FILE = "model.onnx"
 COURT_FILE = "court.json"
 CAMERA_FILE = "camera.json"
 CONFIG_FILE = "localizer.json"
 KIND = "geometric"
 
 
-def _sha(path: Path) -> str:
+def file_sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def build_package(out_dir: Path, court: Court, camera: CameraModel, config: LocalizerConfig | None = None,
-                  name: str = "courtloc-geometric", version: int = 1,
-                  metrics: dict[str, dict[str, float]] | None = None,
-                  training_data: TrainingData | None = None) -> Manifest:
-    """Write a package folder; returns the manifest stored in its model.onnx."""
-    import onnx
-
-    config = config or LocalizerConfig()
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / COURT_FILE).write_text(court.model_dump_json(indent=1))
-    (out_dir / CAMERA_FILE).write_text(camera.model_dump_json(indent=1))
-    (out_dir / CONFIG_FILE).write_text(config.model_dump_json(indent=1))
-    table = build_floor_table(camera, config.edge_offset_px, config.max_range_m)
-    model = build_graph(table, camera.height, camera.width)
-    manifest = Manifest(
-        name=name, version=version,
-        input=InputSpec(kind="scan_hits", description="radial-scan hits of one frame, full-frame pixel "
-                        "coordinates (row, col, ray, d), as on the preprocess stage's Edges message",
-                        tensors=[TensorSpec(name=INPUT, dtype="int16", shape=["K", 4])]),
-        preprocessing=runtime_preprocessing(camera.width, camera.height),
-        court=court.name, camera=camera.name,
-        outputs=[OutputSpec(name=OUTPUT, components=["x_robot", "y_robot"], units=["m", "m"])],
-        training_data=training_data, metrics=metrics or {},
-        extra={
-            "localizer": KIND,
-            "pose_outputs": "x m, y m, yaw rad (court frame), quality 0..1, valid",
-            "court_file": COURT_FILE, "court_sha256": _sha(out_dir / COURT_FILE),
-            "camera_file": CAMERA_FILE, "camera_sha256": _sha(out_dir / CAMERA_FILE),
-            "config_file": CONFIG_FILE, "config_sha256": _sha(out_dir / CONFIG_FILE),
-            "edge_offset_px": config.edge_offset_px,
-            "symmetry": config.symmetry, "half": config.half,
-        },
-    )
-    final = attach_manifest(model, manifest)
-    onnx.save(model, str(out_dir / MODEL_FILE))
-    log.info("wrote localizer package %s (%s / %s)", out_dir, court.name, camera.name)
-    return final
 
 
 @dataclass(frozen=True)
@@ -91,11 +45,13 @@ class Package:
         return self.folder / MODEL_FILE
 
 
-def load_package(folder: Path, config_override: LocalizerConfig | None = None) -> Package:
-    """Read and cross-check a package folder; raises ManifestError on anything inconsistent."""
-    folder = Path(folder)
-    model_path = folder / MODEL_FILE
-    manifest = verify_weights(model_path) if model_path.is_file() else read_manifest(model_path)
+def load_package(model: ModelFile | Path, config_override: LocalizerConfig | None = None) -> Package:
+    """Read and cross-check a package (its folder, or its model file already read); raises ManifestError
+    on anything inconsistent."""
+    if not isinstance(model, ModelFile):
+        model = ModelFile.read(Path(model) / MODEL_FILE)
+    model.verify_weights()
+    folder, model_path, manifest = model.path.parent, model.path, model.manifest
     extra = manifest.extra
     if extra.get("localizer") != KIND or manifest.input.kind != "scan_hits":
         raise ManifestError(f"{model_path}: not a geometric localizer package (input kind "
@@ -105,7 +61,7 @@ def load_package(folder: Path, config_override: LocalizerConfig | None = None) -
         path = folder / str(extra.get(f"{key}_file", ""))
         if not path.is_file():
             raise ManifestError(f"{folder}: package part {path.name!r} ({key}) is missing")
-        if _sha(path) != extra.get(f"{key}_sha256"):
+        if file_sha256(path) != extra.get(f"{key}_sha256"):
             raise ManifestError(f"{path}: does not match the sha256 in the package manifest")
         parts[key] = path
     court = load_court(parts["court"])

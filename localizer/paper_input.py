@@ -27,7 +27,7 @@ def hits_to_dot_image(hits: np.ndarray, height: int = FRAME_HEIGHT, width: int =
     `hits` is N x >=2 with (row, col) first — the `Edges` message's int16 (row, col, ray, d) rows fit.
     Drawn by the preprocess stage's own `draw_hits`, so live hits and seed images give the same pixels.
     """
-    from courtloc.services.preprocess.seed_dots import draw_hits
+    from courtloc.scan.seed_dots import draw_hits
 
     hits = np.asarray(hits)
     if hits.size == 0:

@@ -1,4 +1,5 @@
-"""The runtime predictor: a model file or package in, `predict(hits, width, height, previous)` out.
+"""The runtime predictor: a model file or package in, `predict(hits, width, height, previous)` and
+`track(hits, width, height, state, t)` out.
 
 What the infer service calls. The manifest's input kind decides how hits are fed:
 - 'scan_hits' (a geometric localizer package folder): the package's ONNX turns hits into floor points,
@@ -8,7 +9,9 @@ What the infer service calls. The manifest's input kind decides how hits are fed
   than the whole compiled fit); without it, onnxruntime and numpy as before.
 - 'dense_image' / 'sparse_hits' (the paper network, an .onnx file): hits are drawn as the dot image
   (courtloc.localizer.paper_input) and the network gives x, y; no yaw; quality 1 (it has no self-check).
-Stateless: the caller keeps the previous pose (e.g. the last valid Prediction).
+Stateless: the caller keeps the previous pose or the tracking state (`courtloc.localizer.tracking`).
+Every model file is read and parsed once (`ModelFile`); its court comes from its package (a geometric
+package ships court.json) or, for a bare paper-network file, from the world model by the manifest's name.
 """
 from __future__ import annotations
 
@@ -18,12 +21,19 @@ from pathlib import Path
 from typing import Optional, Protocol, Sequence
 
 import numpy as np
+import onnxruntime as ort
 from pydantic import BaseModel, Field
 
-from courtloc.localizer.manifest import Manifest, ManifestError, read_manifest
+from courtloc.localizer.fit import kernel_active
+from courtloc.localizer.geometric import GeometricLocalizer, LocalizeResult
+from courtloc.localizer.config import LocalizerConfig
+from courtloc.localizer.manifest import MODEL_FILE, PAPER_KINDS, Manifest, ManifestError
+from courtloc.localizer.model_file import ModelFile
+from courtloc.localizer.package import load_package
+from courtloc.localizer.paper_input import hits_to_dense_input, hits_to_sparse_input, dense_input, sparse_input
+from courtloc.world.court import Court, load_court
 
 log = logging.getLogger(__name__)
-PAPER_KINDS = ("dense_image", "sparse_hits")
 
 
 class Prediction(BaseModel):
@@ -42,18 +52,21 @@ class Prediction(BaseModel):
 
 class Predictor(Protocol):
     manifest: Manifest
+    court: Court
 
     def predict(self, hits: np.ndarray, width: int, height: int,
                 previous: Optional[Prediction | Sequence[float]] = None) -> Prediction: ...
 
+    def track(self, hits: np.ndarray, width: int, height: int, state: object,
+              t: float | None = None) -> tuple[Prediction, object]:
+        """One frame of a track: the prediction and the state to hand back with the next frame."""
 
-def _session(path: Path, providers: Sequence[str] | None, threads: int):
-    import onnxruntime as ort
 
+def _session(model: ModelFile, providers: Sequence[str] | None, threads: int) -> ort.InferenceSession:
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
-    return ort.InferenceSession(str(path), options, providers=list(providers or ["CPUExecutionProvider"]))
+    return ort.InferenceSession(model.data, options, providers=list(providers or ["CPUExecutionProvider"]))
 
 
 def _as_hits(hits: np.ndarray) -> np.ndarray:
@@ -69,18 +82,15 @@ def _as_hits(hits: np.ndarray) -> np.ndarray:
     return np.rint(h[:, :4]).astype(np.int16)
 
 
-def _floor_table(model_path: Path, shape: tuple[int, int]) -> np.ndarray:
-    """The package ONNX's floor table (the initializer onnx_graph.build_graph stores), (H * W, 2) float32."""
-    import onnx
-    from onnx import numpy_helper
-
-    for init in onnx.load(str(model_path)).graph.initializer:
-        if init.name == "floor_table":
-            table = np.ascontiguousarray(numpy_helper.to_array(init), np.float32)
-            if table.shape != (shape[0] * shape[1], 2):
-                raise ManifestError(f"{model_path}: floor table {table.shape} does not match {shape[1]}x{shape[0]}")
-            return table
-    raise ManifestError(f"{model_path}: no floor_table initializer")
+def _floor_table(model: ModelFile, shape: tuple[int, int]) -> np.ndarray:
+    """The package ONNX's floor table (the initializer the package builder stores), (H * W, 2) float32."""
+    table = model.initializer("floor_table")
+    if table is None:
+        raise ManifestError(f"{model.path.name}: no floor_table initializer")
+    table = np.ascontiguousarray(table, np.float32)
+    if table.shape != (shape[0] * shape[1], 2):
+        raise ManifestError(f"{model.path.name}: floor table {table.shape} does not match {shape[1]}x{shape[0]}")
+    return table
 
 
 def _previous_pose(previous) -> Optional[np.ndarray]:
@@ -97,19 +107,15 @@ def _previous_pose(previous) -> Optional[np.ndarray]:
 
 
 class GeometricPredictor:
-    def __init__(self, folder: Path, providers: Sequence[str] | None = None, threads: int = 1,
-                 config=None) -> None:
-        from courtloc.localizer.fit import kernel_active
-        from courtloc.localizer.geometric import GeometricLocalizer
-        from courtloc.localizer.package import load_package
-
-        self._kernel_active = kernel_active
-        self.package = load_package(folder, config)
+    def __init__(self, model: ModelFile, providers: Sequence[str] | None = None, threads: int = 1,
+                 config: LocalizerConfig | None = None) -> None:
+        self.package = load_package(model, config)
         self.manifest = self.package.manifest
-        self.session = _session(self.package.model_path, providers, threads)
+        self.court = self.package.court
+        self.session = _session(model, providers, threads)
         self.localizer = GeometricLocalizer(self.package.court, self.package.camera, self.package.config)
         self.width, self.height = self.package.camera.width, self.package.camera.height
-        self.floor_table = _floor_table(self.package.model_path, (self.height, self.width))
+        self.floor_table = _floor_table(model, (self.height, self.width))
 
     def floor_points(self, hits: np.ndarray) -> np.ndarray:
         """The ONNX graph's answer: (N, 2) float32 floor points, NaN where a hit sees no floor."""
@@ -117,7 +123,7 @@ class GeometricPredictor:
 
     def projected_hits(self, hits: np.ndarray):  # -> projection.ProjectedHits
         """The fit's per-hit geometry: compiled table lookup when the kernel runs, else onnxruntime + numpy."""
-        if self._kernel_active():
+        if kernel_active():
             return self.localizer.geometry.from_table(self.floor_table, _as_hits(hits))
         hits = _as_hits(hits)
         return self.localizer.geometry.from_points(self.floor_points(hits), hits[:, 0], hits[:, 1])
@@ -141,7 +147,7 @@ class GeometricPredictor:
         return _prediction(step.result), step.state
 
 
-def _prediction(res) -> Prediction:  # noqa: ANN001 - geometric.LocalizeResult
+def _prediction(res: LocalizeResult) -> Prediction:
     x, y, yaw = (float(v) for v in res.pose)
     return Prediction(x=x, y=y, yaw=yaw, quality=res.quality, valid=res.valid, mode=res.mode,
                       n_hits=res.fit.n_hits, n_inliers=res.fit.n_inliers,
@@ -153,48 +159,72 @@ def _prediction(res) -> Prediction:  # noqa: ANN001 - geometric.LocalizeResult
 class PaperPredictor:
     """The paper network (dense or sparse graph): x, y only."""
 
-    def __init__(self, path: Path, providers: Sequence[str] | None = None, threads: int = 1) -> None:
-        self.manifest = read_manifest(path)
+    def __init__(self, model: ModelFile, providers: Sequence[str] | None = None, threads: int = 1) -> None:
+        self.manifest = model.manifest
         if self.manifest.input.kind not in PAPER_KINDS:
-            raise ManifestError(f"{path}: input kind {self.manifest.input.kind!r} is not a paper-network input")
-        self.session = _session(path, providers, threads)
+            raise ManifestError(f"{model.path.name}: input kind {self.manifest.input.kind!r} is not a "
+                                "paper-network input")
+        try:
+            self.court = load_court(self.manifest.court)
+        except (OSError, ValueError) as exc:
+            raise ManifestError(f"unknown court {self.manifest.court!r}: {exc}") from None
+        self.session = _session(model, providers, threads)
         self.names = [t.name for t in self.manifest.input.tensors]
         self.shape = self.manifest.input.tensors[0].shape
         self.crop_top = self.manifest.preprocessing.crop_top
 
     def predict(self, hits: np.ndarray, width: int, height: int,
                 previous: Optional[Prediction | Sequence[float]] = None) -> Prediction:
-        from courtloc.localizer import paper_input
-
         pre = self.manifest.preprocessing
         if (width, height) != (pre.frame_width, pre.frame_height):
             raise ValueError(f"frame {width}x{height} does not match the model's {pre.frame_width}x{pre.frame_height}")
         h = _as_hits(hits)
         if self.manifest.input.kind == "dense_image":
-            dense = paper_input.hits_to_dense_input(h, height, width, self.crop_top, pre.dot_radius)
-            feed = {self.names[0]: dense.reshape([d if isinstance(d, int) else -1 for d in self.shape])}
+            dense = hits_to_dense_input(h, height, width, self.crop_top, pre.dot_radius)
+            xy = self._run_dense(dense)
         else:
-            idx, val = paper_input.hits_to_sparse_input(h, height, width, self.crop_top, pre.dot_radius)
-            feed = {self.names[0]: idx, self.names[1]: val}
-        out = self.session.run(None, feed)[0].reshape(-1)
-        return Prediction(x=float(out[0]), y=float(out[1]), yaw=None, quality=1.0, valid=True, mode="network",
+            xy = self._run_sparse(*hits_to_sparse_input(h, height, width, self.crop_top, pre.dot_radius))
+        return Prediction(x=float(xy[0]), y=float(xy[1]), yaw=None, quality=1.0, valid=True, mode="network",
                           n_hits=len(h))
 
+    def track(self, hits: np.ndarray, width: int, height: int, state: object,
+              t: float | None = None) -> tuple[Prediction, object]:
+        """The network sees each frame alone: tracking is predicting, and there is no state."""
+        return self.predict(hits, width, height), None
 
-def load_predictor(path: Path | str, providers: Sequence[str] | None = None, threads: int = 1,
-                   config=None) -> Predictor:
+    def predict_dots(self, dots: np.ndarray) -> np.ndarray:
+        """(x, y) of one full-frame 0/1 dot image (the seed datasets' form of the input)."""
+        if self.manifest.input.kind == "dense_image":
+            return self._run_dense(dense_input(dots, self.crop_top))
+        return self._run_sparse(*sparse_input(dots, self.crop_top))
+
+    def _run_dense(self, dense: np.ndarray) -> np.ndarray:
+        # [1, H, W] for the MLP, [1, 1, H, W] for the CNN baselines
+        feed = {self.names[0]: dense.reshape([d if isinstance(d, int) else -1 for d in self.shape])}
+        return self.session.run(None, feed)[0].reshape(-1)[:2]
+
+    def _run_sparse(self, indices: np.ndarray, values: np.ndarray) -> np.ndarray:
+        return self.session.run(None, {self.names[0]: indices, self.names[1]: values})[0].reshape(-1)[:2]
+
+
+def load_predictor(path: Path | str | ModelFile, providers: Sequence[str] | None = None, threads: int = 1,
+                   config: LocalizerConfig | None = None) -> Predictor:
     """A predictor for a package folder (or its model.onnx) or a paper-network .onnx file.
 
     Raises ManifestError for a file without a usable manifest, so a service can refuse it and keep the
     model it has.
     """
-    path = Path(path)
-    onnx_path = path / "model.onnx" if path.is_dir() else path
-    if not onnx_path.is_file():
-        raise ManifestError(f"no model at {path} (a package folder or an .onnx file)")
-    manifest = read_manifest(onnx_path)
-    if manifest.input.kind == "scan_hits":
-        return GeometricPredictor(onnx_path.parent, providers, threads, config)
-    if manifest.input.kind in PAPER_KINDS:
-        return PaperPredictor(onnx_path, providers, threads)
-    raise ManifestError(f"{onnx_path}: no predictor for input kind {manifest.input.kind!r}")
+    if isinstance(path, ModelFile):
+        model = path
+    else:
+        path = Path(path)
+        onnx_path = path / MODEL_FILE if path.is_dir() else path
+        if not onnx_path.is_file():
+            raise ManifestError(f"no model at {path} (a package folder or an .onnx file)")
+        model = ModelFile.read(onnx_path)
+    kind = model.manifest.input.kind
+    if kind == "scan_hits":
+        return GeometricPredictor(model, providers, threads, config)
+    if kind in PAPER_KINDS:
+        return PaperPredictor(model, providers, threads)
+    raise ManifestError(f"{model.path.name}: no predictor for input kind {kind!r}")

@@ -24,7 +24,7 @@ from functools import cached_property
 
 import numpy as np
 
-from courtloc.sim.camera import CameraModel
+from courtloc.world.camera import CameraModel
 
 try:
     from courtloc.localizer import _fit_kernel

@@ -15,11 +15,12 @@ import math
 import numpy as np
 
 from courtloc.localizer.config import Half
+from courtloc.world.angles import wrap_angle
 
 
 def mirror(pose: np.ndarray) -> np.ndarray:
     x, y, yaw = pose
-    return np.array([-x, -y, (yaw + 2 * math.pi) % (2 * math.pi) - math.pi])
+    return np.array([-x, -y, wrap_angle(yaw + math.pi)])
 
 
 def in_half(pose: np.ndarray, half: Half, centre_margin_m: float) -> bool:

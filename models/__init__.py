@@ -1,0 +1,12 @@
+"""Models shipped inside the package: the bundled localizer packages (data, no code)."""
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+DEFAULT_PACKAGE = "default"
+
+
+def bundled_package(name: str = DEFAULT_PACKAGE) -> Path:
+    """The folder of a bundled localizer package (models/<name>/)."""
+    return Path(str(resources.files("courtloc.models") / name))

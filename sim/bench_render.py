@@ -19,8 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from courtloc.sim.camera import load_camera
-    from courtloc.sim.court import load_court
+    from courtloc.world.camera import load_camera
+    from courtloc.world.court import load_court
     from courtloc.sim.render import Renderer, RenderOptions
 
     court = load_court(args.court)

@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 # ---- dataset synth -----------------------------------------------------------------------------------
 def _register_synth(dataset_sub: argparse._SubParsersAction) -> None:
     p = dataset_sub.add_parser("synth", help="render a labelled synthetic dataset from the digital twin")
-    p.add_argument("--court", required=True, help="court name (see sim/courts) or JSON path")
+    p.add_argument("--court", required=True, help="court name (see world/courts) or JSON path")
     p.add_argument("--camera", default=None, help="camera name or JSON path (default: the court's camera)")
     p.add_argument("--n", type=int, required=True, help="number of frames")
     p.add_argument("--out", required=True, help="output directory (resumable: existing frames are kept)")
@@ -97,10 +97,10 @@ def _calibrate(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from courtloc.sim.calibrate import (SEED_LAG_S, CalibrationOptions, calibrate, dot_reproduction,
+    from courtloc.lab.calibrate import (SEED_LAG_S, CalibrationOptions, calibrate, dot_reproduction,
                                         load_dot_frames, nominal_camera)
-    from courtloc.sim.camera import load_camera
-    from courtloc.sim.court import load_court
+    from courtloc.world.camera import load_camera
+    from courtloc.world.court import load_court
     from courtloc.sim.labels import lag_corrected, read_pose_csv
 
     lag = SEED_LAG_S if args.lag is None else args.lag

@@ -1,6 +1,6 @@
 """The twin's link to the preprocess stage: edge hits of rendered frames and dot centres of seed images.
 
-Both come from `courtloc.services.preprocess` (the pipeline's own code), so the twin is checked against
+Both come from `courtloc.scan` (the pipeline's own code), so the twin is checked against
 exactly what the robot runs.
 """
 from __future__ import annotations
@@ -12,8 +12,8 @@ import numpy as np
 
 @lru_cache(maxsize=1)
 def _preprocessor():
-    from courtloc.services.preprocess.config import PreprocessConfig
-    from courtloc.services.preprocess.pipeline import Preprocessor
+    from courtloc.scan.config import PreprocessConfig
+    from courtloc.scan.preprocessor import Preprocessor
 
     return Preprocessor(PreprocessConfig())
 
@@ -25,7 +25,7 @@ def scan_hits(bgr: np.ndarray) -> np.ndarray:
 
 def dot_centres(image: np.ndarray) -> np.ndarray:
     """(N, 2) float (u, v) = (column, row) centres of the white dots of a seed-style edge image."""
-    from courtloc.services.preprocess.seed_dots import dots_to_hits
+    from courtloc.scan.seed_dots import dots_to_hits
 
     rows_cols = dots_to_hits(image)
     return rows_cols[:, ::-1].astype(float)
@@ -33,6 +33,6 @@ def dot_centres(image: np.ndarray) -> np.ndarray:
 
 def hits_image(hits: np.ndarray, height: int, width: int) -> np.ndarray:
     """The seed-style dot image (white radius-2 dots on black) of hits."""
-    from courtloc.services.preprocess.seed_dots import draw_hits
+    from courtloc.scan.seed_dots import draw_hits
 
     return draw_hits(hits, height, width)

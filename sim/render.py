@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from courtloc.sim.camera import CameraModel, Pose
-from courtloc.sim.court import Court
+from courtloc.world.camera import CameraModel, Pose
+from courtloc.world.court import Court
 
 Range = tuple[float, float]
 _PANORAMA_WIDTH = 2048  # pixels for 360 degrees of arena backdrop

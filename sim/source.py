@@ -12,7 +12,7 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from courtloc.sim.camera import Pose
+from courtloc.world.camera import Pose
 from courtloc.sim.render import RenderOptions
 
 log = logging.getLogger(__name__)
@@ -24,7 +24,7 @@ DEFAULT_WAYPOINTS: list[list[float]] = [[3.0, -2.0], [3.0, 2.0], [-3.0, 2.0], [-
 
 class SimSourceConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    court: str = Field("seed-gazebo", description="court name (sim/courts) or JSON path")
+    court: str = Field("seed-gazebo", description="court name (world/courts) or JSON path")
     camera: Optional[str] = Field(None, description="camera name or JSON path; default: the court's camera")
     trajectory: Literal["waypoints", "random_walk", "csv"] = "waypoints"
     waypoints: list[list[float]] = Field(default_factory=lambda: [list(w) for w in DEFAULT_WAYPOINTS])
@@ -48,8 +48,8 @@ class SimSource:
 
     # ---- lifecycle ------------------------------------------------------------------------------
     def open(self) -> "SimSource":
-        from courtloc.sim.camera import load_camera
-        from courtloc.sim.court import load_court
+        from courtloc.world.camera import load_camera
+        from courtloc.world.court import load_court
         from courtloc.sim.render import Renderer
 
         cfg = self.config

@@ -81,8 +81,8 @@ def synth(config: SynthConfig, progress: Callable[[int, int, int], None] | None 
     """Write the dataset; returns counts. progress(done, total, written) is called after each frame."""
     import cv2
 
-    from courtloc.sim.camera import load_camera
-    from courtloc.sim.court import load_court
+    from courtloc.world.camera import load_camera
+    from courtloc.world.court import load_court
     from courtloc.sim.edges import hits_image, scan_hits
     from courtloc.sim.render import Renderer
 

@@ -15,18 +15,15 @@ from typing import Protocol, Sequence
 
 import numpy as np
 
-from courtloc.sim.court import Court
+from courtloc.world.court import Court
 from courtloc.sim.labels import orientation_z_to_yaw
+from courtloc.world.angles import wrap_angle
 
 Pose = tuple[float, float, float]
 
 
 class Trajectory(Protocol):
     def pose_at(self, t: float) -> Pose: ...
-
-
-def wrap_angle(a: float) -> float:
-    return math.atan2(math.sin(a), math.cos(a))
 
 
 class _Legs:

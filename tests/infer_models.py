@@ -21,8 +21,8 @@ from onnx import TensorProto, helper, numpy_helper
 from courtloc.common.messages import Edges, Header
 from courtloc.localizer.manifest import (InputSpec, Manifest, OutputSpec, PreprocessSpec, TensorSpec,
                                          attach_manifest, read_manifest, write_manifest)
-from courtloc.services.infer.service import bundled_default
-from courtloc.services.preprocess.pipeline import hits_to_bytes
+from courtloc.models import bundled_package as bundled_default
+from courtloc.common.payloads import hits_to_bytes
 
 COURT = CAMERA = "seed-gazebo"
 WIDTH, HEIGHT, CROP_TOP = 640, 480, 200
@@ -32,10 +32,10 @@ class TwinFrames:
     """Radial-scan hits of rendered twin frames, one per pose, made once."""
 
     def __init__(self, poses: list[tuple[float, float, float]]) -> None:
-        from courtloc.services.preprocess.config import PreprocessConfig
-        from courtloc.services.preprocess.pipeline import Preprocessor
-        from courtloc.sim.camera import load_camera
-        from courtloc.sim.court import load_court
+        from courtloc.scan.config import PreprocessConfig
+        from courtloc.scan.preprocessor import Preprocessor
+        from courtloc.world.camera import load_camera
+        from courtloc.world.court import load_court
         from courtloc.sim.render import Renderer
 
         camera = load_camera(CAMERA)

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 from courtloc.localizer.geometric import GeometricLocalizer
 from courtloc.localizer.projection import FloorProjector
-from courtloc.sim.camera import load_camera
-from courtloc.sim.court import load_court
+from courtloc.world.camera import load_camera
+from courtloc.world.court import load_court
 
 
 def twin_setup(poses):  # noqa: ANN001, ANN201

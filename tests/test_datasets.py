@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from courtloc.localizer import paper_input
-from courtloc.localizer.datasets import (DatasetError, duplicate_report, load_dataset, read_labels,
+from courtloc.lab.datasets import (DatasetError, duplicate_report, load_dataset, read_labels,
                                          recording_of, split_by_recording)
 from courtloc.training.toy_data import write_toy_dataset
 
@@ -104,9 +104,9 @@ def test_seed_dataset_loads(seed_dir: Path) -> None:
 def test_raw_frames_go_through_the_preprocessor(tmp_path: Path) -> None:
     import cv2
 
-    from courtloc.services.preprocess.config import PreprocessConfig
-    from courtloc.services.preprocess.pipeline import Preprocessor
-    from courtloc.services.preprocess.synthetic import line_frame
+    from courtloc.scan.config import PreprocessConfig
+    from courtloc.scan.preprocessor import Preprocessor
+    from courtloc.scan.synthetic import line_frame
 
     root = tmp_path / "raw"
     (root / "images").mkdir(parents=True)

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from buskit import BusClient, endpoint, free_port
-from courtloc.services.shooter_bridge.geometry import Pose2D, ShooterMount, aim, ring_for
+from courtloc.shot.geometry import Pose2D, ShooterMount, aim, ring_for
 from courtloc.services.shooter_bridge.protocol import Command
-from courtloc.services.shooter_bridge.rpm import RpmTable
+from courtloc.shot.rpm import RpmTable
 from test_shooter_link import FakeMcu
 
 pytestmark = [pytest.mark.integration, pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs ptys")]

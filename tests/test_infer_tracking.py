@@ -1,4 +1,4 @@
-from courtloc.services.infer.tracking import Tracker
+from courtloc.localizer.tracking import Tracker
 
 
 def test_valid_and_trackable_poses_are_kept() -> None:

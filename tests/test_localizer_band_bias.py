@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
+from courtloc.lab import band_bias_calibration
 from courtloc.localizer import band_bias
 from courtloc.localizer.config import FitConfig, LocalizerConfig
 from courtloc.localizer.court_field import THIN_BAND_HALF_WIDTH_M
@@ -64,7 +65,7 @@ def test_rendered_thin_bands_put_their_hits_further_out(twin):
     _, _, localizer, projector, raw = twin
     widths, offsets = [], []
     for pose, h in raw.items():
-        w, off = band_bias.band_samples(localizer.field, projector.project(h[:, 0], h[:, 1]), np.array(pose),
+        w, off = band_bias_calibration.band_samples(localizer.field, projector.project(h[:, 0], h[:, 1]), np.array(pose),
                                         localizer.config.fit)
         widths.append(w)
         offsets.append(off)
@@ -75,11 +76,11 @@ def test_rendered_thin_bands_put_their_hits_further_out(twin):
 
 
 def test_seed_bias_calibrated_on_one_recording_holds_on_the_other(seed_dir):
-    from courtloc.localizer.seed_eval import load_seed_frames
+    from courtloc.lab.seed_eval import load_seed_frames
     from courtloc.localizer.court_field import CourtField
     from courtloc.localizer.projection import FloorProjector
-    from courtloc.sim.camera import load_camera
-    from courtloc.sim.court import load_court
+    from courtloc.world.camera import load_camera
+    from courtloc.world.court import load_court
 
     frames = load_seed_frames(seed_dir, step=5)
     court, camera = load_court("seed-gazebo"), load_camera("seed-gazebo")
@@ -91,12 +92,12 @@ def test_seed_bias_calibrated_on_one_recording_holds_on_the_other(seed_dir):
         return [(projector.project(h[:, 0], h[:, 1]), t) for h, t, r in
                 zip(frames.hits, frames.truth, frames.recordings) if r == recording]
 
-    widths, samples = band_bias.calibrate(field, pairs("20250622"), cfg.fit)
+    widths, samples = band_bias_calibration.calibrate(field, pairs("20250622"), cfg.fit)
     assert len(widths) >= 4 and samples[0] > 0.3  # lines under a step wide: hits ~half a step further out
-    w, off = (np.concatenate(a) for a in zip(*(band_bias.band_samples(field, hits, truth, cfg.fit)
+    w, off = (np.concatenate(a) for a in zip(*(band_bias_calibration.band_samples(field, hits, truth, cfg.fit)
                                                  for hits, truth in pairs("20250625"))))
     corrected = off - np.interp(w, widths, samples)
-    for lo, hi in zip(band_bias.BIN_EDGES[:2], band_bias.BIN_EDGES[1:3]):  # the bands under a step wide
+    for lo, hi in zip(band_bias_calibration.BIN_EDGES[:2], band_bias_calibration.BIN_EDGES[1:3]):  # the bands under a step wide
         sel = (w >= lo) & (w < hi)
         assert sel.sum() >= 100
         # Most of it, not all: hits of one frame share their lines, so a fifth of the frames measures a

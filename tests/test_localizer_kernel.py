@@ -139,7 +139,7 @@ def test_hit_geometry_equals_table_lookup_and_numpy_geometry(setup):
 
 
 def test_predictor_paths_agree_and_use_the_onnx_table():
-    from courtloc.localizer.eval import default_model_path
+    from courtloc.lab.eval import default_model_path
     from courtloc.localizer.predictor import load_predictor
     from courtloc.sim.edges import scan_hits
     from courtloc.sim.render import Renderer

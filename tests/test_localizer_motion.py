@@ -12,8 +12,8 @@ from courtloc.localizer.config import LocalizerConfig, MotionConfig
 from courtloc.localizer.geometric import GeometricLocalizer
 from courtloc.localizer.projection import FloorProjector
 from courtloc.localizer.symmetry import mirror
-from courtloc.sim.camera import load_camera
-from courtloc.sim.court import load_court
+from courtloc.world.camera import load_camera
+from courtloc.world.court import load_court
 
 CFG = MotionConfig()
 

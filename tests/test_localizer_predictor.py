@@ -55,7 +55,7 @@ def test_file_without_manifest_is_refused(tmp_path):
 
 def test_geometric_predictor_tracks_with_the_motion_filter_state() -> None:
     """What the infer stage runs per frame: the first frame searches, later ones track from the returned state."""
-    from courtloc.localizer.eval import default_model_path
+    from courtloc.lab.eval import default_model_path
     from courtloc.localizer.motion import MotionState
     from infer_models import TwinFrames
 

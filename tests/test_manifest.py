@@ -84,8 +84,8 @@ def test_missing_and_bad_manifest(tmp_path: Path) -> None:
 
 
 def test_bundled_package_states_the_runtime_preprocessing_and_its_data() -> None:
-    from courtloc.localizer.eval import default_model_path
-    from courtloc.services.preprocess.config import DEFAULT_HSV_RANGES, ScanConfig
+    from courtloc.lab.eval import default_model_path
+    from courtloc.scan.config import DEFAULT_HSV_RANGES, ScanConfig
 
     manifest = read_manifest(default_model_path() / "model.onnx")
     pre = manifest.preprocessing

@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from courtloc.localizer.metrics import compute_metrics, wrap_angle
+from courtloc.lab.metrics import compute_metrics
+from courtloc.world.angles import wrap_angle
 
 
 def test_metrics_match_hand_computed_values() -> None:

@@ -21,7 +21,7 @@ from courtloc.deployment import DeploymentConfig
 from courtloc.monitor.state import court_payload
 from courtloc.monitor.thumbnail import Thumbnailer
 from courtloc.monitor.watcher import MonitorWatcher
-from courtloc.sim.court import load_court
+from courtloc.world.court import load_court
 
 ROBOT = "robot1"
 

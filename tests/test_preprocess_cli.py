@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from courtloc.services.preprocess.config import PreprocessConfig
-from courtloc.services.preprocess.reference_scan import reference_preprocess
-from courtloc.services.preprocess.synthetic import line_frame
+from courtloc.scan.config import PreprocessConfig
+from courtloc.scan.reference_scan import reference_preprocess
+from courtloc.scan.synthetic import line_frame
 
 
 def courtloc(*args: str) -> subprocess.CompletedProcess:

@@ -6,16 +6,11 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from courtloc.services.preprocess.config import PreprocessConfig
-from courtloc.services.preprocess.pipeline import (
-    FrameError,
-    Preprocessor,
-    decode_frame,
-    hits_from_bytes,
-    hits_to_bytes,
-)
-from courtloc.services.preprocess.reference_scan import reference_preprocess
-from courtloc.services.preprocess.synthetic import line_frame
+from courtloc.scan.config import PreprocessConfig
+from courtloc.common.payloads import FrameError, decode_frame, hits_from_bytes, hits_to_bytes
+from courtloc.scan.preprocessor import Preprocessor
+from courtloc.scan.reference_scan import reference_preprocess
+from courtloc.scan.synthetic import line_frame
 
 
 @pytest.fixture(scope="module")

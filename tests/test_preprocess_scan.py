@@ -8,12 +8,12 @@ import cv2
 import numpy as np
 import pytest
 
-from courtloc.services.preprocess.config import HsvRange, PreprocessConfig, ScanConfig
-from courtloc.services.preprocess.hsv_mask import WhiteMask, white_mask
-from courtloc.services.preprocess.pipeline import Preprocessor
-from courtloc.services.preprocess.radial_scan import RadialScanner
-from courtloc.services.preprocess.reference_scan import reference_preprocess, reference_scan
-from courtloc.services.preprocess.synthetic import line_frame, noise_frame
+from courtloc.scan.config import HsvRange, PreprocessConfig, ScanConfig
+from courtloc.scan.hsv_mask import WhiteMask, white_mask
+from courtloc.scan.preprocessor import Preprocessor
+from courtloc.scan.radial_scan import RadialScanner
+from courtloc.scan.reference_scan import reference_preprocess, reference_scan
+from courtloc.scan.synthetic import line_frame, noise_frame
 
 
 @pytest.fixture(params=["native", "numpy"])
@@ -213,7 +213,7 @@ def test_compiled_scan_refuses_a_table_that_points_outside_the_frame() -> None:
     scanner = RadialScanner(ScanConfig())
     if not scanner.native:
         pytest.skip("compiled radial scan not built")
-    from courtloc.services.preprocess.native_scan import kernel_hit_samples, load_kernel
+    from courtloc.scan.native_scan import kernel_hit_samples, load_kernel
 
     table = scanner.table(48, 64)
     white = WhiteMask(PreprocessConfig().hsv_ranges)

@@ -7,17 +7,17 @@ import cv2
 import numpy as np
 import pytest
 
-from courtloc.services.preprocess.config import PreprocessConfig, ScanConfig
-from courtloc.services.preprocess.pipeline import Preprocessor
-from courtloc.services.preprocess.radial_scan import RadialScanner
-from courtloc.services.preprocess.seed_dots import (
+from courtloc.scan.config import PreprocessConfig, ScanConfig
+from courtloc.scan.preprocessor import Preprocessor
+from courtloc.scan.radial_scan import RadialScanner
+from courtloc.scan.seed_dots import (
     centroids_to_hits,
     dot_offsets,
     dots_to_hits,
     draw_hits,
     image_to_hits,
 )
-from courtloc.services.preprocess.synthetic import line_frame
+from courtloc.scan.synthetic import line_frame
 
 
 def jpeg_round_trip(gray: np.ndarray, quality: int = 90) -> np.ndarray:

@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from courtloc.services.preprocess.config import PreprocessConfig
-from courtloc.services.preprocess.hsv_mask import white_mask
-from courtloc.services.preprocess.pipeline import Preprocessor
-from courtloc.services.preprocess.reference_scan import reference_preprocess
+from courtloc.scan.config import PreprocessConfig
+from courtloc.scan.hsv_mask import white_mask
+from courtloc.scan.preprocessor import Preprocessor
+from courtloc.scan.reference_scan import reference_preprocess
 
 POSES = [(0.0, 0.0, 0.0), (2.0, 1.0, 0.5), (-3.0, -2.0, 2.5), (4.0, -1.0, -1.0)]
 
@@ -15,8 +15,8 @@ POSES = [(0.0, 0.0, 0.0), (2.0, 1.0, 0.5), (-3.0, -2.0, 2.5), (4.0, -1.0, -1.0)]
 @pytest.fixture(scope="module")
 def renderer():  # noqa: ANN201
     render = pytest.importorskip("courtloc.sim.render")
-    camera = pytest.importorskip("courtloc.sim.camera")
-    court = pytest.importorskip("courtloc.sim.court")
+    camera = pytest.importorskip("courtloc.world.camera")
+    court = pytest.importorskip("courtloc.world.court")
     try:
         return render.Renderer(court.load_court("seed-gazebo"), camera.load_camera("seed-gazebo")), render
     except (AttributeError, FileNotFoundError, TypeError) as exc:  # a renderer still taking shape

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from courtloc.services.shooter_bridge.ballistics import (
+from courtloc.shot.ballistics import (
     G, ShotModel, UnreachableShot, fit, rpm_for_speed, solve, vacuum_speed)
-from courtloc.services.shooter_bridge.rpm import RpmTable
+from courtloc.shot.rpm import RpmTable
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "deploy" / "shooter" / "example_rpm_table.csv"
 

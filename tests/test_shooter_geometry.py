@@ -5,8 +5,9 @@ import math
 
 import pytest
 
-from courtloc.services.shooter_bridge.geometry import (
-    Pose2D, ShooterMount, UnreachableAim, aim, ring_for, shooter_position, wrap_angle)
+from courtloc.shot.geometry import (
+    Pose2D, ShooterMount, UnreachableAim, aim, ring_for, shooter_position)
+from courtloc.world.angles import wrap_angle
 
 
 def test_centred_shooter_3_4_5_triangle() -> None:

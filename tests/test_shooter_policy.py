@@ -6,10 +6,10 @@ import math
 import pytest
 
 from courtloc.services.shooter_bridge.config import AreaConfig, PolicyConfig, ShooterConfig
-from courtloc.services.shooter_bridge.geometry import Pose2D, ShooterMount
+from courtloc.shot.geometry import Pose2D, ShooterMount
 from courtloc.services.shooter_bridge.policy import ShotPolicy, build_area, build_policy, polygon_area
 from courtloc.services.shooter_bridge.protocol import Command, Flag, HoldReason
-from courtloc.services.shooter_bridge.rpm import RpmLookup, RpmTable
+from courtloc.shot.rpm import RpmLookup, RpmTable
 
 RING = (6.0, 0.0, 2.43)
 TABLE = RpmTable([1.0, 7.0], [1000.0, 4000.0])  # linear: 500 rpm per metre

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from courtloc.services.shooter_bridge.rpm import RpmTable, TableError, TableWatcher
+from courtloc.shot.rpm import RpmTable, TableError, TableWatcher
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "deploy" / "shooter" / "example_rpm_table.csv"

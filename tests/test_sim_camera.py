@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from courtloc.sim.camera import CameraModel, court_to_robot, load_camera, robot_to_court
+from courtloc.world.camera import CameraModel, court_to_robot, load_camera, robot_to_court
 
 
 def _camera(**mount) -> CameraModel:

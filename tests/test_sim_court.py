@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from courtloc.sim.court import available_courts, load_court
+from courtloc.world.court import available_courts, load_court
 
 
 def test_packaged_courts_load_by_name():

@@ -6,8 +6,8 @@ import pytest
 from pydantic import ValidationError
 from scipy.spatial import cKDTree
 
-from courtloc.sim.camera import CameraModel, load_camera
-from courtloc.sim.court import load_court
+from courtloc.world.camera import CameraModel, load_camera
+from courtloc.world.court import load_court
 from courtloc.sim.render import OccluderOptions, Renderer, RenderOptions
 
 
@@ -35,8 +35,8 @@ def test_frame_shape_and_known_floor_points(seed_renderer):
 
 
 def test_preprocess_finds_far_edges_of_the_painted_lines(seed_renderer):
-    from courtloc.services.preprocess.config import PreprocessConfig
-    from courtloc.services.preprocess.pipeline import Preprocessor
+    from courtloc.scan.config import PreprocessConfig
+    from courtloc.scan.preprocessor import Preprocessor
 
     court, cam = seed_renderer.court, seed_renderer.camera
     edges, normals = court.white_edges(0.01)

@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from courtloc.sim.court import load_court
+from courtloc.world.court import load_court
 from courtloc.sim.source import SimSource, SimSourceConfig
-from courtloc.sim.trajectory import CsvTrajectory, RandomWalkTrajectory, WaypointTrajectory, wrap_angle
+from courtloc.sim.trajectory import CsvTrajectory, RandomWalkTrajectory, WaypointTrajectory
+from courtloc.world.angles import wrap_angle
 
 
 def _speeds(traj, dt: float, seconds: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

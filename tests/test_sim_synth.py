@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from courtloc.cli import main
-from courtloc.sim.court import load_court
+from courtloc.world.court import load_court
 from courtloc.sim.labels import read_pose_csv
 from courtloc.sim.synth import SynthConfig, image_name, synth
 
@@ -43,7 +43,7 @@ def test_synth_writes_seed_format_and_resumes(tmp_path):
 
 def test_synth_labels_match_the_rendered_frame(tmp_path):
     """The CSV pose, through yaw = 2*asin(z), re-renders the stored raw frame."""
-    from courtloc.sim.camera import load_camera
+    from courtloc.world.camera import load_camera
     from courtloc.sim.render import Renderer, RenderOptions
 
     out = tmp_path / "raw"

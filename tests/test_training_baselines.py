@@ -10,7 +10,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from courtloc.localizer.eval import PaperOnnxModel  # noqa: E402
+from courtloc.lab.eval import PaperOnnxModel  # noqa: E402
 from courtloc.localizer.manifest import verify_weights  # noqa: E402
 from courtloc.training.baselines import ARCHES, build_baseline, export_cnn  # noqa: E402
 from courtloc.training.export import paper_manifest  # noqa: E402
@@ -47,7 +47,7 @@ def _run(argv: list[str]) -> int:
 
 
 def test_frame_steps_stride_each_side_of_the_recording_split(tmp_path: Path) -> None:
-    from courtloc.localizer.datasets import Dataset
+    from courtloc.lab.datasets import Dataset
     from courtloc.training.toy_data import write_toy_dataset
     from courtloc.training.trainer import TrainConfig, _split
 

@@ -8,8 +8,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from courtloc.localizer.datasets import load_dataset  # noqa: E402
-from courtloc.localizer.eval import PaperOnnxModel, evaluate, open_model  # noqa: E402
+from courtloc.lab.datasets import load_dataset  # noqa: E402
+from courtloc.lab.eval import PaperOnnxModel, evaluate, open_model  # noqa: E402
 from courtloc.localizer.manifest import read_manifest, verify_weights  # noqa: E402
 from courtloc.training.export import export_paper  # noqa: E402
 from courtloc.training.lazy_adam import LazyAdamRows, RowBatch  # noqa: E402

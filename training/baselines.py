@@ -98,8 +98,8 @@ def train_baseline(cfg, arch: str) -> dict:  # noqa: ANN001 - trainer.TrainConfi
 
     from tqdm import tqdm
 
-    from courtloc.localizer.datasets import Dataset
-    from courtloc.localizer.metrics import compute_metrics
+    from courtloc.lab.datasets import Dataset
+    from courtloc.lab.metrics import compute_metrics
     from courtloc.training.export import paper_manifest
     from courtloc.training.trainer import HISTORY, SparseFrames, _split, plot_history
 

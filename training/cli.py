@@ -5,7 +5,7 @@ import argparse
 import json
 from pathlib import Path
 
-from courtloc.localizer.dataset_args import add_dataset_arguments
+from courtloc.lab.dataset_args import add_dataset_arguments
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import torch
 
-from courtloc.localizer.datasets import threshold_dots
+from courtloc.lab.datasets import threshold_dots
 from courtloc.localizer.paper_input import dense_input
 from courtloc.training.paper_model import DensePaperNet
 

@@ -7,6 +7,7 @@ import sys
 import threading
 
 from courtloc.recording.busargs import add_client_arguments, client_deployment
+from courtloc.common.signals import stop_on_signals
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,9 +40,7 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"monitor: {exc}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_on_signals()
     print(f"monitor for {config.robot_id}: {monitor.url}", flush=True)
     monitor.run(stop)
     return 0

@@ -17,6 +17,7 @@ import numpy as np
 
 from courtloc.common import codec
 from courtloc.common.messages import Edges, Frame
+from courtloc.common.payloads import HIT_DTYPE, FrameError, edges_hits, frame_pixels
 from courtloc.monitor.watcher import MonitorWatcher
 
 log = logging.getLogger("courtloc.monitor")
@@ -35,20 +36,18 @@ class Thumbnail:
 
 def frame_image(frame: Frame) -> np.ndarray | None:
     """BGR pixels of a frame message, or None when its bytes do not make one."""
-    if frame.encoding == "jpeg":
-        image = cv2.imdecode(np.frombuffer(frame.data, np.uint8), cv2.IMREAD_COLOR)
-        return image
-    if len(frame.data) != frame.width * frame.height * 3:
+    try:
+        return frame_pixels(frame)
+    except FrameError:
         return None
-    return np.frombuffer(frame.data, np.uint8).reshape(frame.height, frame.width, 3)
 
 
 def edge_hits(edges: Edges) -> np.ndarray:
-    """(N, 4) int16 rows of (row, col, ray, d); empty when the payload length disagrees with n_hits."""
-    hits = np.frombuffer(edges.hits, dtype="<i2")
-    if hits.size != edges.n_hits * 4:
-        return np.zeros((0, 4), np.int16)
-    return hits.reshape(-1, 4)
+    """(N, 4) int16 rows of (row, col, ray, d); empty when the payload disagrees with n_hits."""
+    try:
+        return edges_hits(edges)
+    except ValueError:
+        return np.zeros((0, 4), HIT_DTYPE)
 
 
 def render(image: np.ndarray, hits: np.ndarray | None, width: int, quality: int = 80) -> bytes:

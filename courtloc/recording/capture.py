@@ -20,11 +20,13 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
+import cv2
 import zenoh
 
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.messages import Frame
+from courtloc.common.payloads import frame_pixels
 from courtloc.common.services_table import TOPICS
 from courtloc.common.stats import RateLimitedLog
 
@@ -151,11 +153,7 @@ class SeedWriter:
     def _jpeg(self, frame: Frame) -> bytes:
         if frame.encoding == "jpeg":
             return frame.data  # already compressed by the camera: stored as received
-        import cv2
-        import numpy as np
-
-        pixels = np.frombuffer(frame.data, np.uint8).reshape(frame.height, frame.width, 3)
-        ok, buf = cv2.imencode(".jpg", pixels, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+        ok, buf = cv2.imencode(".jpg", frame_pixels(frame), [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
         if not ok:
             raise ValueError("JPEG encoding failed")
         return buf.tobytes()

@@ -9,6 +9,7 @@ import threading
 from pathlib import Path
 
 from courtloc.recording.busargs import add_client_arguments, client_deployment
+from courtloc.common.signals import stop_on_signals
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -60,12 +61,6 @@ def add_capture_parser(dataset_sub: argparse._SubParsersAction) -> None:
     capture.set_defaults(func=run_capture)
 
 
-def _stop_on_signals() -> threading.Event:
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    return stop
-
 
 def _deployment(args: argparse.Namespace):  # noqa: ANN202
     from courtloc.common.config_loader import ConfigError
@@ -97,7 +92,7 @@ def run_record(args: argparse.Namespace) -> int:
     limits = Limits(max_bytes=int(args.max_mb * 1e6) if args.max_mb else None, max_seconds=args.max_seconds)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     series = McapSeries(args.out, limits, recording_metadata(config.robot_id, paths))
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     recorder = Recorder(config.robot_id, config.zenoh, paths, series)
     ready = lambda: print(f"recording {len(paths)} topic(s) of {config.robot_id} to {args.out}", flush=True)  # noqa: E731
 
@@ -144,7 +139,7 @@ def run_replay(args: argparse.Namespace) -> int:
         return 2
     options = ReplayOptions(speed=args.speed, loop=args.loop, only=set(args.only) if args.only else None,
                             robot_id=args.robot, restamp=args.restamp, wait_subscribers_s=args.wait_subscribers)
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     print(f"replaying {', '.join(str(f) for f in files)}", flush=True)
     try:
         stats = Replayer(files, config.zenoh, options).run(stop)
@@ -163,7 +158,7 @@ def run_capture(args: argparse.Namespace) -> int:
         return 2
     options = CaptureOptions(out=args.out, tolerance_ms=args.tolerance_ms, offset_ms=args.offset_ms, n=args.n,
                              duration_s=args.duration, truth_path=args.truth_topic, truth_robot=args.truth_robot)
-    stop = _stop_on_signals()
+    stop = stop_on_signals()
     try:
         capture = Capture(config.robot_id, config.zenoh, options)
         ready = lambda: print(f"capturing {config.robot_id} frames + {options.truth_path} to {args.out}", flush=True)  # noqa: E731

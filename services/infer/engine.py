@@ -11,17 +11,20 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from courtloc.services.infer.config import InferConfig
+import onnxruntime
+from onnx.helper import tensor_dtype_to_np_dtype
 
-if TYPE_CHECKING:
-    from courtloc.localizer.manifest import Manifest
-    from courtloc.sim.court import Court
+from courtloc.localizer.manifest import Manifest, ManifestError
+from courtloc.localizer.model_file import ModelFile
+from courtloc.localizer.predictor import Predictor, load_predictor
+from courtloc.security.signing import ModelSignatureError, signature_path, verify_model
+from courtloc.services.infer.config import InferConfig
 from courtloc.services.infer.golden import GoldenSets
 from courtloc.services.infer.store import ModelRef, StoredModel
+from courtloc.world.court import Court
 
 log = logging.getLogger(__name__)
 
@@ -36,24 +39,26 @@ class ModelRefused(RuntimeError):
 @dataclass
 class LoadedModel:
     ref: ModelRef
-    predictor: object  # courtloc.localizer.predictor.Predictor
-    court: object  # courtloc.sim.court.Court, for the on-court check
+    predictor: Predictor
     input_kind: str
 
     @property
-    def manifest(self) -> "Manifest":
+    def manifest(self) -> Manifest:
         return self.predictor.manifest
+
+    @property
+    def court(self) -> Court:
+        """The court the model comes with (its package's court.json), for the on-court check."""
+        return self.predictor.court
 
 
 def available_providers(preferred: list[str]) -> list[str]:
-    import onnxruntime
-
     installed = set(onnxruntime.get_available_providers())
     chosen = [_PROVIDER_NAMES[p] for p in preferred if _PROVIDER_NAMES[p] in installed]
     return chosen or ["CPUExecutionProvider"]
 
 
-def is_on_court(court: "Court", x: float, y: float, margin: float) -> bool:
+def is_on_court(court: Court, x: float, y: float, margin: float) -> bool:
     return bool(court.contains(x, y, margin=margin))
 
 
@@ -64,48 +69,35 @@ def load_model(stored: StoredModel, config: InferConfig, golden: GoldenSets | No
     `pushed`: the model is entering the store, so its signature is checked (when required). Versions
     already in the store were checked when they came in, and the bundled default ships unsigned.
     """
-    from courtloc.localizer.manifest import ManifestError, read_manifest, verify_weights
-    from courtloc.localizer.predictor import load_predictor
-    from courtloc.sim.court import load_court
-
-    path = stored.model_path
     try:
-        manifest = read_manifest(path)
+        model_file = ModelFile.read(stored.model_path)  # the one parse of the graph: every check below uses it
     except ManifestError as exc:
         raise ModelRefused(f"manifest: {exc}") from None
-    except Exception as exc:  # a truncated or non-ONNX file fails inside onnx's parser
-        raise ModelRefused(f"not a readable ONNX model: {type(exc).__name__}: {exc}") from None
     if golden is not None:
         if pushed:
             _check_signature_file(stored.folder, config)
-        check_graph_signature(path, manifest)
+        check_graph_signature(model_file)
         try:
-            verify_weights(path)
+            model_file.verify_weights()
         except ManifestError as exc:
             raise ModelRefused(f"sha256: {exc}") from None
         except Exception as exc:
             raise ModelRefused(f"weights unreadable: {type(exc).__name__}: {exc}") from None
     try:
-        predictor = load_predictor(stored.folder, providers=available_providers(config.providers),
+        predictor = load_predictor(model_file, providers=available_providers(config.providers),
                                    threads=config.threads)
     except Exception as exc:  # onnxruntime raises its own types for bad graphs and wrong shapes
         raise ModelRefused(f"cannot load: {type(exc).__name__}: {exc}") from None
-    try:
-        court = load_court(manifest.court)
-    except Exception as exc:
-        raise ModelRefused(f"unknown court {manifest.court!r}: {exc}") from None
-    loaded = LoadedModel(stored.ref, predictor, court, manifest.input.kind)
+    loaded = LoadedModel(stored.ref, predictor, model_file.manifest.input.kind)
     if golden is not None:
         _run_golden(loaded, config, golden)
     return loaded
 
 
-def check_graph_signature(path: Path, manifest: "Manifest") -> None:
+def check_graph_signature(model: ModelFile) -> None:
     """The graph's inputs are exactly the manifest's tensors: names, element types and fixed dimensions."""
-    import onnx
-    from onnx.helper import tensor_dtype_to_np_dtype
-
-    graph = onnx.load(str(path), load_external_data=False).graph
+    manifest = model.manifest
+    graph = model.proto.graph
     weights = {t.name for t in graph.initializer}
     inputs = {i.name: i for i in graph.input if i.name not in weights}
     wanted = {t.name: t for t in manifest.input.tensors}
@@ -124,8 +116,6 @@ def check_graph_signature(path: Path, manifest: "Manifest") -> None:
 def _check_signature_file(folder: Path, config: InferConfig) -> None:
     if not config.require_signature:
         return
-    from courtloc.security.signing import ModelSignatureError, signature_path, verify_model
-
     if config.signing_public_key is None:
         raise ModelRefused("signature required but no signing_public_key is configured")
     model = folder / "model.onnx"

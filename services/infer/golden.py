@@ -34,10 +34,10 @@ class GoldenSets:
 
 
 def _render_golden(court_name: str, camera_name: str) -> list[GoldenFrame]:
-    from courtloc.services.preprocess.config import PreprocessConfig
-    from courtloc.services.preprocess.pipeline import Preprocessor
-    from courtloc.sim.camera import load_camera
-    from courtloc.sim.court import load_court
+    from courtloc.scan.config import PreprocessConfig
+    from courtloc.scan.preprocessor import Preprocessor
+    from courtloc.world.camera import load_camera
+    from courtloc.world.court import load_court
     from courtloc.sim.render import Renderer
 
     camera = load_camera(camera_name)

@@ -1,45 +1,31 @@
 """Infer stage: edge hits -> pose, from the store's active model, with hot swap and shadow mode."""
 from __future__ import annotations
 
-import importlib.resources
 import math
-import queue
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
-import zenoh
+from pydantic import BaseModel
 
-from courtloc.common import codec
-from courtloc.common.control import ModelReply, ModelRequest
+from courtloc.common.control import ModelReply
 from courtloc.common.inbox import Delivery
 from courtloc.common.messages import Edges, Pose
+from courtloc.common.payloads import edges_hits
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.runtime import Service
-from courtloc.common.services_table import CONTROLS, Topic
+from courtloc.common.services_table import Control, Topic
+from courtloc.models import bundled_package
 from courtloc.services.infer.config import InferConfig
 from courtloc.services.infer.engine import LoadedModel, ModelRefused, is_on_court, load_model
 from courtloc.services.infer.golden import GoldenSets
 from courtloc.services.infer.model_control import ModelControl
 from courtloc.services.infer.shadow import ShadowRunner
 from courtloc.services.infer.store import ModelRef, ModelStore, StoredModel
-from courtloc.services.infer.tracking import Tracker
+from courtloc.localizer.tracking import Tracker
 from courtloc.services.infer.uploads import Uploads
-from courtloc.services.preprocess.pipeline import hits_from_bytes
 
 DEFAULT_MODEL_NAME = "default"
-
-
-def bundled_default() -> Path:
-    return Path(str(importlib.resources.files("courtloc.models") / "default"))
-
-
-def hits_of(edges: Edges) -> np.ndarray:
-    hits = hits_from_bytes(edges.hits)
-    if len(hits) != edges.n_hits:
-        raise ValueError(f"{len(hits)} hits in the payload, the header says {edges.n_hits}")
-    return hits
 
 
 class InferService(Service):
@@ -55,21 +41,12 @@ class InferService(Service):
         self.tracker = Tracker()
         self.swaps = 0
         self._control = ModelControl(self, Uploads(self.store, int(config.max_upload_mb * 2**20)))
-        self._control_thread: threading.Thread | None = None
-        self._queries: queue.Queue[zenoh.Query] = queue.Queue(maxsize=64)
-        self._queryable = None
 
     # ---- start-up ----------------------------------------------------------------------
     def on_start(self) -> None:
         self.active = self._load_active()
         self.log.info("serving model %s", self.active.ref)
         self._prepare_golden(self.active)
-        assert self.session is not None
-        control = CONTROLS["infer/model"]
-        # The callback only queues the query; requests are answered on our own control thread.
-        self._queryable = self.session.declare_queryable(control.key(self.robot_id), self._enqueue_query)
-        self._control_thread = threading.Thread(target=self._serve_control, name="infer-control", daemon=True)
-        self._control_thread.start()
 
     def _prepare_golden(self, model: LoadedModel) -> None:
         """Render the golden inputs of the serving model's court now, before frames flow: rendering them at
@@ -82,7 +59,7 @@ class InferService(Service):
     def _load_active(self) -> LoadedModel:
         """The store's active model; a fresh store gets the bundled default as version 1."""
         if self.store.record().active is None:
-            stored = self.store.add_folder(bundled_default(), DEFAULT_MODEL_NAME)
+            stored = self.store.add_folder(bundled_package(), DEFAULT_MODEL_NAME)
             self.store.set_active(stored.ref)
         stored = self.store.active()
         assert stored is not None
@@ -98,7 +75,7 @@ class InferService(Service):
     def on_message(self, topic: Topic, message: Edges, delivery: Delivery) -> None:
         fresh = self.is_fresh(message.header, topic)
         try:
-            hits = hits_of(message)
+            hits = edges_hits(message)
         except ValueError as exc:
             self.reject(topic.path, "bad_hits", str(exc))
             return
@@ -121,15 +98,10 @@ class InferService(Service):
         if len(hits) == 0:
             reason = "no_hits"
         else:
-            track = getattr(model.predictor, "track", None)
-            if track is not None:
-                # Capture times on the camera's monotonic clock: the filter predicts over the real interval.
-                pred, tracker.motion = track(hits, edges.width, edges.height, tracker.motion,
-                                             t=edges.header.capture_mono_ns * 1e-9)
-            else:
-                pred = model.predictor.predict(hits, edges.width, edges.height, previous=tracker.previous)
+            # Capture times on the camera's monotonic clock: the filter predicts over the real interval.
+            pred = tracker.step(model.predictor, hits, edges.width, edges.height,
+                                t=edges.header.capture_mono_ns * 1e-9)
             x, y, yaw, quality = float(pred.x), float(pred.y), pred.yaw, float(pred.quality)
-            tracker.update(x, y, yaw, pred.valid, pred.trackable)
             finite = all(math.isfinite(v) for v in (x, y, *(() if yaw is None else (yaw,))))
             if not finite:
                 reason, x, y, yaw = "non_finite", 0.0, 0.0, None
@@ -147,40 +119,9 @@ class InferService(Service):
                     model_name=model.ref.name, model_version=model.ref.version,
                     infer_ms=(time.perf_counter() - start) * 1e3, reason=reason)
 
-    # ---- model control (its own thread) -------------------------------------------------------
-    def _enqueue_query(self, query: zenoh.Query) -> None:
-        try:
-            self._queries.put_nowait(query)
-        except queue.Full:  # dropped: the caller's request times out and it may ask again
-            self.record_error("control", "model request queue full; request dropped")
-
-    def _serve_control(self) -> None:
-        assert self._queryable is not None
-        while not self.stop_event.is_set():
-            try:
-                query = self._queries.get(timeout=0.5)  # wakes up to notice a shutdown
-            except queue.Empty:
-                continue
-            # Dropping the query finalises it; until then the asker does not get the reply (a query
-            # kept alive in the loop variable would hold it until the next request arrived).
-            with query:
-                self._answer(query)
-
-    def _answer(self, query: zenoh.Query) -> None:
-        payload = query.payload
-        try:
-            request = codec.decode(bytes(payload) if payload is not None else b"", ModelRequest)
-            reply = self._control.handle(request)
-        except codec.DecodeError as exc:
-            self.reject(CONTROLS["infer/model"].path, exc.reason, exc.detail)
-            reply = ModelReply(ok=False, reason=f"bad request: {exc}")
-        except Exception as exc:  # a control bug must not stop inference
-            self.log.exception("model control failed")
-            reply = ModelReply(ok=False, reason=f"internal error: {type(exc).__name__}: {exc}")
-        try:
-            query.reply(query.key_expr, codec.encode(reply))
-        except zenoh.ZError as exc:
-            self.record_error("control", f"cannot answer model request: {exc}")
+    # ---- model control (the runtime's control thread) -------------------------------------------
+    def on_control(self, control: Control, request: BaseModel) -> BaseModel:
+        return self._control.handle(request)
 
     # ModelHost, for ModelControl
     def validate(self, stored: StoredModel, pushed: bool = False) -> LoadedModel:
@@ -214,10 +155,6 @@ class InferService(Service):
         return ModelReply(ok=True, name=stats.name, version=stats.version, shadow=stats)
 
     def on_stop(self) -> None:
-        if self._control_thread is not None:
-            self._control_thread.join(timeout=5.0)
-        if self._queryable is not None:
-            self._queryable.undeclare()
         self.start_shadow(None)
 
     def health_detail(self) -> dict[str, float | int | str]:

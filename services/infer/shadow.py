@@ -13,7 +13,8 @@ import numpy as np
 from courtloc.common.control import ShadowStats
 from courtloc.common.inbox import LatestInbox
 from courtloc.common.messages import Edges, Pose
-from courtloc.services.infer.tracking import Tracker
+from courtloc.localizer.tracking import Tracker
+from courtloc.world.angles import wrap_angle
 
 
 class ShadowRunner:
@@ -45,7 +46,7 @@ class ShadowRunner:
                 with self._lock:
                     self._diffs.append(math.hypot(pose.x - active.x, pose.y - active.y))
                     if pose.yaw is not None and active.yaw is not None:
-                        wrapped = (pose.yaw - active.yaw + math.pi) % (2 * math.pi) - math.pi
+                        wrapped = wrap_angle(pose.yaw - active.yaw)
                         self._yaw_diffs.append(abs(math.degrees(wrapped)))
 
     def stats(self) -> ShadowStats:

@@ -20,9 +20,10 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from courtloc.localizer.manifest import MODEL_FILE
+
 log = logging.getLogger(__name__)
 
-MODEL_FILE = "model.onnx"
 ACTIVE_FILE = "active.json"
 INCOMING = ".incoming"
 

@@ -10,8 +10,9 @@ from courtloc.common.messages import Edges, Frame
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Topic
-from courtloc.services.preprocess.config import PreprocessConfig
-from courtloc.services.preprocess.pipeline import FrameError, Preprocessor, decode_frame, hits_to_bytes
+from courtloc.scan.config import PreprocessConfig
+from courtloc.common.payloads import FrameError, decode_frame, hits_to_bytes
+from courtloc.scan.preprocessor import Preprocessor
 
 
 class PreprocessService(Service):

@@ -6,8 +6,8 @@ from typing import Literal, Optional, Union
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from courtloc.services.shooter_bridge.ballistics import ShotModel
-from courtloc.services.shooter_bridge.geometry import ShooterMount, ring_for
+from courtloc.shot.ballistics import ShotModel
+from courtloc.shot.geometry import ShooterMount, ring_for
 
 
 class _Strict(BaseModel):
@@ -26,7 +26,7 @@ class MountConfig(_Strict):
 
 
 class TargetConfig(_Strict):
-    court: str = Field("robocon2025", description="court model name (sim/courts) or path to its JSON")
+    court: str = Field("robocon2025", description="court model name (world/courts) or path to its JSON")
     basket: Union[Literal["positive_x", "negative_x"], int] = Field(
         "positive_x", description="the ring on that half of the court, or an index into the court's rings")
     ring: Optional[tuple[float, float, float]] = Field(None, description="ring centre (x, y, z); overrides the court")

@@ -19,11 +19,11 @@ from courtloc.common.bus import ZenohConfig
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Topic
 from courtloc.services.shooter_bridge.config import ShooterConfig
-from courtloc.services.shooter_bridge.geometry import Pose2D
+from courtloc.shot.geometry import Pose2D
 from courtloc.services.shooter_bridge.link import McuLink
 from courtloc.services.shooter_bridge.policy import ShotDecision, build_policy
 from courtloc.services.shooter_bridge.protocol import Command
-from courtloc.services.shooter_bridge.rpm import make_rpm_source
+from courtloc.shot.rpm import make_rpm_source
 
 
 class ShooterBridgeService(Service):

@@ -1,0 +1,79 @@
+"""Serving a stage's controls (the services table's queryables) off Zenoh's callback thread.
+
+The callback only queues the query; a thread of our own decodes the request, asks the stage's handler
+and replies, so a slow request (a model validation) never blocks Zenoh, and a bad request is counted
+like any bad message.
+"""
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from typing import Callable
+
+import zenoh
+from pydantic import BaseModel
+
+from courtloc.common import codec
+from courtloc.common.services_table import Control
+
+log = logging.getLogger(__name__)
+_QUEUE_DEPTH = 64
+_POLL_S = 0.5  # how often the serving thread looks at the stop event while idle
+
+Handler = Callable[[Control, BaseModel], BaseModel]
+
+
+class ControlServer:
+    def __init__(self, session: zenoh.Session, controls: list[Control], robot_id: str, handler: Handler,
+                 reject: Callable[[str, str, str], None], record_error: Callable[[str, str], None],
+                 stop: threading.Event, thread_name: str) -> None:
+        self._handler = handler
+        self._reject = reject
+        self._record_error = record_error
+        self._stop = stop
+        self._queries: queue.Queue[tuple[Control, zenoh.Query]] = queue.Queue(maxsize=_QUEUE_DEPTH)
+        self._queryables = [session.declare_queryable(c.key(robot_id), self._enqueue(c)) for c in controls]
+        self._thread = threading.Thread(target=self._serve, name=thread_name, daemon=True)
+        self._thread.start()
+
+    def _enqueue(self, control: Control) -> Callable[[zenoh.Query], None]:
+        def on_query(query: zenoh.Query) -> None:
+            try:
+                self._queries.put_nowait((control, query))
+            except queue.Full:  # dropped: the caller's request times out and it may ask again
+                self._record_error("control", f"{control.path}: request queue full; request dropped")
+
+        return on_query
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            try:
+                control, query = self._queries.get(timeout=_POLL_S)
+            except queue.Empty:
+                continue
+            # Dropping the query finalises it; until then the asker does not get the reply (a query kept
+            # alive in a loop variable would hold it until the next request arrived).
+            with query:
+                self._answer(control, query)
+
+    def _answer(self, control: Control, query: zenoh.Query) -> None:
+        payload = query.payload
+        try:
+            request = codec.decode(bytes(payload) if payload is not None else b"", control.request)
+            reply = self._handler(control, request)
+        except codec.DecodeError as exc:
+            self._reject(control.path, exc.reason, exc.detail)
+            reply = control.reply(ok=False, reason=f"bad request: {exc}")
+        except Exception as exc:  # a control bug must not stop the stage
+            log.exception("%s failed", control.path)
+            reply = control.reply(ok=False, reason=f"internal error: {type(exc).__name__}: {exc}")
+        try:
+            query.reply(query.key_expr, codec.encode(reply))
+        except zenoh.ZError as exc:
+            self._record_error("control", f"cannot answer {control.path}: {exc}")
+
+    def close(self) -> None:
+        self._thread.join(timeout=5.0)
+        for queryable in self._queryables:
+            queryable.undeclare()

@@ -1,0 +1,145 @@
+"""Per-frame time of the geometric localizer after preprocessing (hits in, pose out), tracking vs cold start.
+
+Frames are the digital twin's: rendered at random poses and run through the robot's own preprocess code,
+so the bench needs no dataset. Timed per frame, on the runtime path (`GeometricPredictor.predict`:
+hits -> floor points -> fit -> Prediction): tracking = started from the true pose moved by a typical
+between-frame motion; cold start = no previous pose (global search). Both paths are timed in the same
+run, interleaved frame by frame so that the ratio holds on a noisy machine: the compiled one (fit_kernel.c:
+table lookup + geometry + the whole fit in C, what runs when the kernel is built) and the numpy reference
+(onnxruntime + numpy, the fallback without a compiler). One onnxruntime thread; pin the process to one
+core (taskset -c 0) to measure "one CPU core". `--compare-sequential` also times the path that fits a
+frame's starts one at a time (the pre-batching tracking path). `tracking_filtered` times what the infer
+stage runs per frame: `GeometricPredictor.track`, the same fit from the motion filter's prediction plus the
+filter's predict and update (a state started at the perturbed pose one frame period earlier).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--package", type=Path, help="localizer package folder (default: the bundled models/default)")
+    parser.add_argument("--frames", type=int, default=40, help="distinct twin frames")
+    parser.add_argument("--repeats", type=int, default=20, help="tracking runs per frame")
+    parser.add_argument("--cold-repeats", type=int, default=2, help="cold-start runs per frame")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--compare-sequential", action="store_true",
+                        help="also time the one-start-at-a-time fit path side by side (same frames, interleaved)")
+    parser.add_argument("--json", type=Path, help="also write the result here")
+
+
+def _frames(predictor, n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    from courtloc.sim.edges import scan_hits
+    from courtloc.sim.render import Renderer
+
+    court, camera = predictor.package.court, predictor.package.camera
+    renderer = Renderer(court, camera)
+    rng = np.random.default_rng(seed)
+    hx, hy = court.area_half_extent_m
+    out = []
+    while len(out) < n:
+        pose = np.array([rng.uniform(-0.8 * hx, 0.8 * hx), rng.uniform(-0.8 * hy, 0.8 * hy), rng.uniform(-math.pi, math.pi)])
+        hits = scan_hits(renderer.render(tuple(pose)))
+        if len(hits) >= 20:
+            out.append((pose, hits))
+    return out
+
+
+def _stats(ms: list[float]) -> dict:
+    a = np.asarray(ms)
+    if a.size == 0:
+        return {"n": 0}
+    return {"n": int(a.size), "median_ms": float(np.median(a)), "p95_ms": float(np.percentile(a, 95)),
+            "mean_ms": float(a.mean())}
+
+
+def _timed(fn) -> tuple[float, object]:
+    t0 = time.perf_counter()
+    out = fn()
+    return (time.perf_counter() - t0) * 1e3, out
+
+
+def run(args: argparse.Namespace) -> int:
+    from courtloc.lab.eval import default_model_path
+    from courtloc.localizer.fit import kernel_active, kernel_enabled
+    from courtloc.localizer.predictor import load_predictor
+
+    package = args.package or default_model_path()
+    predictor = load_predictor(package, threads=1)
+    frames = _frames(predictor, args.frames, args.seed)
+    rng = np.random.default_rng(args.seed + 1)
+    w, h = predictor.width, predictor.height
+    compiled = kernel_active()
+    sequential = None
+    if args.compare_sequential:
+        from courtloc.localizer.geometric import GeometricLocalizer
+
+        loc = predictor.localizer
+        sequential = GeometricLocalizer(loc.court, loc.camera, loc.config, field=loc.field, batch_starts=False)
+    from courtloc.localizer import motion
+
+    motion_cfg = predictor.localizer.config.motion
+    ms: dict[str, list[float]] = {k: [] for k in ("track", "track_numpy", "cold", "cold_numpy", "onnx", "seq",
+                                                 "filtered")}
+    errors, path_diff, seq_diff = [], [], []
+
+    def numpy_predict(*a, **kw):
+        with kernel_enabled(False):
+            return predictor.predict(*a, **kw)
+
+    for pose, hits in frames:
+        predictor.predict(hits, w, h, previous=pose)  # warm caches
+        numpy_predict(hits, w, h, previous=pose)
+        for _ in range(args.repeats):
+            # ~0.6 m/s at 10 Hz: the previous answer is a few centimetres and a degree off.
+            start = pose + np.array([rng.normal(0, 0.05), rng.normal(0, 0.05), rng.normal(0, 0.02)])
+            t, pred = _timed(lambda: predictor.predict(hits, w, h, previous=start))
+            ms["track"].append(t)
+            errors.append(math.hypot(pred.x - pose[0], pred.y - pose[1]))
+            if compiled:
+                t, ref = _timed(lambda: numpy_predict(hits, w, h, previous=start))
+                ms["track_numpy"].append(t)
+                path_diff.append(max(abs(ref.x - pred.x), abs(ref.y - pred.y)))
+            state = motion.start(start, None, 0.0, motion_cfg)
+            ms["filtered"].append(_timed(lambda: predictor.track(hits, w, h, state, motion_cfg.frame_period_s))[0])
+            ms["onnx"].append(_timed(lambda: predictor.floor_points(hits))[0])
+            if sequential is not None:
+                t, res = _timed(lambda: sequential.localize(predictor.projected_hits(hits), start))
+                ms["seq"].append(t)
+                seq_diff.append(math.hypot(res.pose[0] - pred.x, res.pose[1] - pred.y))
+        for _ in range(args.cold_repeats):
+            t, pred = _timed(lambda: predictor.predict(hits, w, h))
+            ms["cold"].append(t)
+            if compiled:
+                t, ref = _timed(lambda: numpy_predict(hits, w, h))
+                ms["cold_numpy"].append(t)
+                path_diff.append(max(abs(ref.x - pred.x), abs(ref.y - pred.y)))
+    result = {
+        "bench": "localize", "package": str(package), "frames": len(frames),
+        "hits_per_frame_median": float(np.median([len(f[1]) for f in frames])),
+        "compiled_kernel": compiled,
+        "tracking": _stats(ms["track"]), "tracking_filtered": _stats(ms["filtered"]), "cold_start": _stats(ms["cold"]),
+        "onnx_hits_to_floor": _stats(ms["onnx"]),
+        "tracking_error_median_m": float(np.median(errors)),
+    }
+    if compiled:
+        result["tracking_numpy"] = _stats(ms["track_numpy"])
+        result["tracking_speedup_median"] = float(np.median(ms["track_numpy"]) / np.median(ms["track"]))
+        if ms["cold"]:
+            result["cold_start_numpy"] = _stats(ms["cold_numpy"])
+            result["cold_start_speedup_median"] = float(np.median(ms["cold_numpy"]) / np.median(ms["cold"]))
+        result["kernel_vs_numpy_max_diff_m"] = float(np.max(path_diff))
+    if sequential is not None:
+        result["tracking_sequential_starts"] = _stats(ms["seq"])
+        result["sequential_vs_batched_max_diff_m"] = float(np.max(seq_diff))
+    text = json.dumps(result, indent=1)
+    print(text)
+    if args.json:
+        args.json.write_text(text)
+    return 0
