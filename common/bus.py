@@ -9,15 +9,13 @@ import json
 import logging
 import os
 import threading
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Literal
+from typing import Literal
 
 import zenoh
-from pydantic import BaseModel, ConfigDict, Field
-
 from courtloc.common.security import SecurityConfig, client_settings
 from courtloc.common.services_table import Topic
+from pydantic import BaseModel, ConfigDict, Field
 
 log = logging.getLogger(__name__)
 
@@ -84,17 +82,6 @@ def open_session(cfg: ZenohConfig, stop: threading.Event | None = None) -> zenoh
             if stop.wait(delay):
                 return None
             delay = min(delay * 2, cfg.open_retry_max_s)
-
-
-@contextmanager
-def session(cfg: ZenohConfig) -> Iterator[zenoh.Session]:
-    """A session that is always closed, however the block ends."""
-    zsession = open_session(cfg)
-    assert zsession is not None
-    try:
-        yield zsession
-    finally:
-        zsession.close()
 
 
 def declare_publisher(zsession: zenoh.Session, topic: Topic, robot_id: str) -> zenoh.Publisher:

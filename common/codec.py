@@ -8,9 +8,8 @@ from __future__ import annotations
 from typing import Any, TypeVar
 
 import msgpack
-from pydantic import BaseModel, ValidationError
-
 from courtloc.common.messages import SCHEMA_VERSION
+from pydantic import BaseModel, ValidationError
 
 M = TypeVar("M", bound=BaseModel)
 

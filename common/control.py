@@ -6,9 +6,8 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field
-
 from courtloc.common.messages import SCHEMA_VERSION
+from pydantic import BaseModel, ConfigDict, Field
 
 
 class _Msg(BaseModel):

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-
 from courtloc.common.messages import Edges, Frame
 
 # A hit is (row, col, ray, d); int16 bounds every frame we accept (checked where hits are made).

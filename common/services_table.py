@@ -9,10 +9,9 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
-from pydantic import BaseModel
-
 from courtloc.common.control import ModelReply, ModelRequest
 from courtloc.common.messages import Edges, Frame, GroundTruth, Health, Pose, ShotSolution
+from pydantic import BaseModel
 
 ROOT = "courtloc"
 ROBOT_ID_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
@@ -146,10 +145,6 @@ def all_liveliness_key(robot_id: str) -> str:
 
 def service_of_liveliness_key(key: str) -> str:
     return key.split("/")[2]
-
-
-def all_health_key(robot_id: str) -> str:
-    return key_of(robot_id, "*/health")
 
 
 def robot_wildcard_key(robot_id: str) -> str:

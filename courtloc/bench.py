@@ -1,28 +1,31 @@
 """`courtloc bench KIND`: every benchmark of the project behind one command.
 
-Each entry names a module exposing `add_arguments(parser)` and `run(args) -> int`.
+Each entry is a module exposing `add_arguments(parser)` and `run(args) -> int`.
 """
 from __future__ import annotations
 
 import argparse
-import importlib
+from types import ModuleType
 
-BENCHES: dict[str, str] = {
-    "pipeline": "courtloc.bench_pipeline",
-    "preprocess": "courtloc.lab.bench_preprocess",
-    "render": "courtloc.sim.bench_render",
-    "paper": "courtloc.lab.model_bench",
-    "localize": "courtloc.lab.bench_localize",
-    "soak": "courtloc.bench_soak",
-    "infer": "courtloc.lab.bench_infer",
+from courtloc import bench_pipeline, bench_soak
+from courtloc.lab import bench_infer, bench_localize, bench_preprocess, model_bench
+from courtloc.sim import bench_render
+
+BENCHES: dict[str, ModuleType] = {
+    "pipeline": bench_pipeline,
+    "preprocess": bench_preprocess,
+    "render": bench_render,
+    "paper": model_bench,
+    "localize": bench_localize,
+    "soak": bench_soak,
+    "infer": bench_infer,
 }
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     bench = sub.add_parser("bench", help="measure speed and memory (never asserted in tests)")
     kinds = bench.add_subparsers(dest="bench_kind", metavar="KIND")
-    for kind, module_name in BENCHES.items():
-        module = importlib.import_module(module_name)
+    for kind, module in BENCHES.items():
         parser = kinds.add_parser(kind, help=(module.__doc__ or "").strip().splitlines()[0])
         module.add_arguments(parser)
         parser.set_defaults(func=module.run)

@@ -8,9 +8,17 @@ from __future__ import annotations
 
 import argparse
 import json
+import socket
+import subprocess
 import sys
 import threading
 from pathlib import Path
+
+import numpy as np
+
+from courtloc.common.services_table import RELAY_HOPS
+from courtloc.deployment import load_deployment
+from courtloc.launcher import run_up
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,9 +31,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from courtloc.deployment import load_deployment
-    from courtloc.launcher import run_up
-
     config = load_deployment(args.config)
     summary = run_up(config, args.seconds, None, threading.Event(), status_stream=sys.stderr)
     e2e = summary["e2e_latency_ms"]
@@ -59,12 +64,8 @@ def run(args: argparse.Namespace) -> int:
 
 def measure_relay(seconds: float, warmup_frames: int = 30, mode: str = "client") -> dict[str, float | int | None]:
     """Router + the relay hops as processes (see courtloc/bench_relay.py); latency at the last hop."""
-    import socket
-    import subprocess
 
-    import numpy as np
 
-    from courtloc.common.services_table import RELAY_HOPS
 
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))

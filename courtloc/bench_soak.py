@@ -13,13 +13,14 @@ import json
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
-from courtloc.common.signals import stop_on_signals
 
+from courtloc.common.signals import stop_on_signals
+from courtloc.deployment import load_deployment
+from courtloc.watch import BusWatcher
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -72,9 +73,6 @@ def _percentile(values_ns: list[int], q: float) -> float | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from courtloc.deployment import load_deployment
-    from courtloc.watch import BusWatcher
-
     config = load_deployment(args.config)
     argv = [sys.executable, "-m", "courtloc", "up", *(["--config", str(args.config)] if args.config else [])]
     up = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL)

@@ -2,28 +2,24 @@
 from __future__ import annotations
 
 import argparse
-import importlib
 import logging
 import os
 import sys
+from types import ModuleType
 from typing import Sequence
 
+from courtloc import bench, model_cli, preprocess_cli, shooter_cli, stage_cli, up_cli
+from courtloc.lab import eval_cli, localizer_cli
+from courtloc.monitor import cli as monitor_cli
+from courtloc.recording import cli as recording_cli
+from courtloc.security import cli as security_cli
+from courtloc.sim import cli as sim_cli
+from courtloc.training import cli as training_cli
+
 # Each module here exposes `register(subparsers)`, adding its sub-command(s) with `set_defaults(func=...)`.
-# Handlers import heavy libraries lazily so `courtloc --help` stays fast.
-COMMAND_MODULES: tuple[str, ...] = (
-    "courtloc.bench",
-    "courtloc.sim.cli",
-    "courtloc.shooter_cli",
-    "courtloc.stage_cli",
-    "courtloc.up_cli",
-    "courtloc.model_cli",
-    "courtloc.training.cli",
-    "courtloc.lab.eval_cli",
-    "courtloc.lab.localizer_cli",
-    "courtloc.preprocess_cli",
-    "courtloc.security.cli",
-    "courtloc.recording.cli",
-    "courtloc.monitor.cli",
+COMMAND_MODULES: tuple[ModuleType, ...] = (
+    bench, sim_cli, shooter_cli, stage_cli, up_cli, model_cli, training_cli, eval_cli, localizer_cli,
+    preprocess_cli, security_cli, recording_cli, monitor_cli,
 )
 
 
@@ -31,8 +27,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="courtloc", description=__doc__)
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
+    for module in COMMAND_MODULES:
+        module.register(sub)
     return parser
 
 

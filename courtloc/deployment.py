@@ -5,9 +5,7 @@ simulated camera, the bundled model.
 """
 from __future__ import annotations
 
-import importlib
 from pathlib import Path
-from typing import Callable
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -16,10 +14,14 @@ from courtloc.common.config_loader import load_model, resolve_relative_paths
 from courtloc.common.runtime import Service
 from courtloc.common.security import with_identity
 from courtloc.common.services_table import SERVICES, check_robot_id
-from courtloc.services.camera.config import CameraConfig
-from courtloc.services.infer.config import InferConfig
 from courtloc.scan.config import PreprocessConfig
+from courtloc.services.camera.config import CameraConfig
+from courtloc.services.camera.service import CameraService
+from courtloc.services.infer.config import InferConfig
+from courtloc.services.infer.service import InferService
+from courtloc.services.preprocess.service import PreprocessService
 from courtloc.services.shooter_bridge.config import ShooterConfig
+from courtloc.services.shooter_bridge.service import ShooterBridgeService
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
@@ -64,8 +66,8 @@ class DeploymentConfig(BaseModel):
 
     @model_validator(mode="after")
     def _one_court_by_default(self) -> "DeploymentConfig":
-        if "court" not in self.camera.sim.model_fields_set:
-            self.camera.sim = self.camera.sim.model_copy(update={"court": self.court})
+        if "court" not in self.camera.sim:
+            self.camera.sim = {**self.camera.sim, "court": self.court}
         target = self.shooter_bridge.target
         if "court" not in target.model_fields_set and target.ring is None:
             self.shooter_bridge = self.shooter_bridge.model_copy(
@@ -83,24 +85,18 @@ def load_deployment(path: Path | None) -> DeploymentConfig:
     return config if path is None else resolve_relative_paths(config, Path(path).resolve().parent)
 
 
-# Stage classes are imported only when that stage runs: a camera process never loads onnxruntime.
-_STAGE_CLASSES: dict[str, str] = {
-    "camera": "courtloc.services.camera.service:CameraService",
-    "preprocess": "courtloc.services.preprocess.service:PreprocessService",
-    "infer": "courtloc.services.infer.service:InferService",
-    "shooter_bridge": "courtloc.services.shooter_bridge.service:ShooterBridgeService",
+STAGE_CLASSES: dict[str, type[Service]] = {
+    "camera": CameraService,
+    "preprocess": PreprocessService,
+    "infer": InferService,
+    "shooter_bridge": ShooterBridgeService,
 }
 
 
-def available_stages() -> list[str]:
-    return [name for name in SERVICES if name in _STAGE_CLASSES]
-
-
 def build_stage(name: str, config: DeploymentConfig) -> Service:
-    if name not in _STAGE_CLASSES:
-        raise ValueError(f"no stage {name!r}; available: {available_stages()}")
-    module_name, class_name = _STAGE_CLASSES[name].split(":")
-    stage_class: Callable[..., Service] = getattr(importlib.import_module(module_name), class_name)
+    if name not in STAGE_CLASSES:
+        raise ValueError(f"no stage {name!r}; available: {list(STAGE_CLASSES)}")
+    stage_class = STAGE_CLASSES[name]
     # Each stage presents its own certificate and password (the ACL grants per identity).
     zenoh_config = config.zenoh.model_copy(update={"security": with_identity(config.zenoh.security, name)})
     return stage_class(config.robot_id, zenoh_config, getattr(config, name))

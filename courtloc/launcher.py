@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import BinaryIO, TextIO
 
 from courtloc.deployment import DeploymentConfig
+from courtloc.watch import BusWatcher
 
 log = logging.getLogger("courtloc.launcher")
 
@@ -133,7 +134,6 @@ def write_effective_config(config: DeploymentConfig, folder: Path) -> Path:
 
 def run_up(config: DeploymentConfig, duration_s: float | None, summary_path: Path | None,
            stop: threading.Event, status_stream: TextIO = sys.stderr) -> dict:
-    from courtloc.watch import BusWatcher
 
     with tempfile.TemporaryDirectory(prefix="courtloc-up-") as tmp:
         folder = Path(tmp)

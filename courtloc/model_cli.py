@@ -6,6 +6,8 @@ import json
 import sys
 from pathlib import Path
 
+from courtloc.common.bus import open_session
+from courtloc.model_client import ModelClient, ModelClientError
 from courtloc.recording.busargs import add_client_arguments, client_deployment
 
 
@@ -35,9 +37,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from courtloc.common.bus import open_session
-    from courtloc.model_client import ModelClient, ModelClientError
-
     try:
         config = client_deployment(args)
     except ValueError as exc:  # ConfigError included: a bad file or a missing credential, named

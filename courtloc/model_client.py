@@ -9,11 +9,20 @@ import zenoh
 
 from courtloc.common import codec
 from courtloc.common.control import (
-    Activate, FileSpec, ListModels, ModelReply, ModelRequest, ModelRequestBody, PushBegin, PushChunk, PushCommit,
-    Rollback, Shadow,
+    Activate,
+    FileSpec,
+    ListModels,
+    ModelReply,
+    ModelRequest,
+    ModelRequestBody,
+    PushBegin,
+    PushChunk,
+    PushCommit,
+    Rollback,
+    Shadow,
 )
 from courtloc.common.services_table import CONTROLS
-from courtloc.security.signing import signature_path
+from courtloc.common.signing import signature_path
 from courtloc.services.infer.store import MODEL_FILE, sha256_file
 
 log = logging.getLogger(__name__)

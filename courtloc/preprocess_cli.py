@@ -6,6 +6,11 @@ import json
 import sys
 from pathlib import Path
 
+from courtloc.common.config_loader import ConfigError, load_model
+from courtloc.common.payloads import FrameError
+from courtloc.scan.config import PreprocessConfig
+from courtloc.scan.preprocessor import Preprocessor, read_image_file
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("preprocess", help="print the radial-scan hits (row, col, ray, d) of one image")
@@ -18,11 +23,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from courtloc.common.config_loader import ConfigError, load_model
-    from courtloc.scan.config import PreprocessConfig
-    from courtloc.common.payloads import FrameError
-    from courtloc.scan.preprocessor import Preprocessor, read_image_file
-
     try:
         config = load_model(args.config, PreprocessConfig)
     except ConfigError as exc:

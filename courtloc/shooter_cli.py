@@ -6,6 +6,11 @@ import json
 import sys
 from pathlib import Path
 
+from courtloc.common.config_loader import ConfigError
+from courtloc.services.shooter_bridge.config import load_shooter_config, make_rpm_source
+from courtloc.shot import ballistics
+from courtloc.shot.rpm import RpmTable, TableError
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     shooter = sub.add_parser("shooter", help="shooter RPM: fit the physics prior to a table, look up an RPM")
@@ -26,8 +31,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _load(config_path: Path | None):  # noqa: ANN202 - ShooterConfig, imported lazily
-    from courtloc.common.config_loader import ConfigError
-    from courtloc.services.shooter_bridge.config import load_shooter_config
 
     try:
         return load_shooter_config(config_path)
@@ -41,9 +44,6 @@ def _ring_height(config) -> float:  # noqa: ANN001
 
 
 def run_fit(args: argparse.Namespace) -> int:
-    from courtloc.shot import ballistics
-    from courtloc.shot.rpm import RpmTable, TableError
-
     config = _load(args.config)
     if config is None:
         return 2
@@ -78,8 +78,6 @@ def run_fit(args: argparse.Namespace) -> int:
 
 
 def run_rpm(args: argparse.Namespace) -> int:
-    from courtloc.shot.rpm import TableError, make_rpm_source
-
     config = _load(args.config)
     if config is None:
         return 2

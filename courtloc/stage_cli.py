@@ -4,11 +4,17 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import signal
 import sys
-import threading
 from pathlib import Path
+
+import zenoh
+
+from courtloc.common.bus import ZenohConfig, build_zenoh_config
+from courtloc.common.config_loader import ConfigError
+from courtloc.common.security import router_settings
 from courtloc.common.signals import stop_on_signals
+from courtloc.deployment import build_stage, load_deployment
+from courtloc.security.acl import access_control
 
 log = logging.getLogger("courtloc.stage")
 
@@ -27,9 +33,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_stage(args: argparse.Namespace) -> int:
-    from courtloc.common.config_loader import ConfigError
-    from courtloc.deployment import build_stage, load_deployment
-
     try:
         config = load_deployment(args.config)
         stage = build_stage(args.service, config)
@@ -40,12 +43,6 @@ def run_stage(args: argparse.Namespace) -> int:
 
 
 def run_router(args: argparse.Namespace) -> int:
-    import zenoh
-
-    from courtloc.common.bus import ZenohConfig, build_zenoh_config
-    from courtloc.common.config_loader import ConfigError
-    from courtloc.deployment import load_deployment
-
     try:
         config = load_deployment(args.config)
     except ConfigError as exc:
@@ -58,9 +55,6 @@ def run_router(args: argparse.Namespace) -> int:
     try:
         zcfg = build_zenoh_config(router_cfg)
         if config.router.secure_dir is not None:
-            from courtloc.common.security import router_settings
-            from courtloc.security.acl import access_control
-
             for path, value in {**router_settings(config.router.secure_dir),
                                 "access_control": access_control(config.robot_id)}.items():
                 zcfg.insert_json5(path, json.dumps(value))

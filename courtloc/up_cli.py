@@ -3,11 +3,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
-import threading
 from pathlib import Path
+
+from courtloc.common.config_loader import ConfigError
 from courtloc.common.signals import stop_on_signals
+from courtloc.deployment import load_deployment
+from courtloc.launcher import run_up
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,10 +21,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from courtloc.common.config_loader import ConfigError
-    from courtloc.deployment import load_deployment
-    from courtloc.launcher import run_up
-
     try:
         config = load_deployment(args.config)
     except ConfigError as exc:

@@ -20,7 +20,11 @@ from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.messages import GroundTruth, Health, Pose, ShotSolution
 from courtloc.common.services_table import (
-    HEALTH_TOPICS, SERVICES, TOPICS, all_liveliness_key, service_of_liveliness_key,
+    HEALTH_TOPICS,
+    SERVICES,
+    TOPICS,
+    all_liveliness_key,
+    service_of_liveliness_key,
 )
 from courtloc.deployment import DeploymentConfig
 

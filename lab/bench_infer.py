@@ -15,6 +15,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -23,6 +25,21 @@ import time
 from pathlib import Path
 
 import numpy as np
+from courtloc.common.bus import ZenohConfig
+from courtloc.common.control import Activate, ModelRequest
+from courtloc.common.messages import Edges, Header
+from courtloc.common.payloads import hits_to_bytes
+from courtloc.localizer.manifest import PAPER_KINDS, read_manifest, write_manifest
+from courtloc.localizer.predictor import load_predictor
+from courtloc.models import bundled_package
+from courtloc.scan.config import PreprocessConfig
+from courtloc.scan.preprocessor import Preprocessor
+from courtloc.services.infer.config import InferConfig
+from courtloc.services.infer.engine import available_providers
+from courtloc.services.infer.service import InferService
+from courtloc.sim.render import Renderer
+from courtloc.world.camera import load_camera
+from courtloc.world.court import load_court
 
 SWAP_FPS = 30.0
 SWAP_LEAD_FRAMES = 60  # frames served before the swap starts: the "before" distribution
@@ -48,12 +65,6 @@ def drive_poses(n: int) -> list[tuple[float, float, float]]:
 
 
 def _render_hits(n: int, out: Path) -> None:
-    from courtloc.scan.config import PreprocessConfig
-    from courtloc.scan.preprocessor import Preprocessor
-    from courtloc.world.camera import load_camera
-    from courtloc.world.court import load_court
-    from courtloc.sim.render import Renderer
-
     camera = load_camera("seed-gazebo")
     renderer = Renderer(load_court("seed-gazebo"), camera)
     pre = Preprocessor(PreprocessConfig(frame_width=camera.width, frame_height=camera.height))
@@ -76,15 +87,11 @@ def peak_rss_mb() -> float:
                 return int(line.split()[1]) / 1024
     except OSError:
         pass
-    import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def _worker_model(args: argparse.Namespace) -> int:
-    from courtloc.localizer.predictor import load_predictor
-    from courtloc.services.infer.engine import available_providers
-
     frames, width, height = _load_hits(args.hits)
     predictor = load_predictor(args.model, providers=available_providers(["tensorrt", "cuda", "cpu"]),
                                threads=args.threads)
@@ -108,16 +115,7 @@ def _worker_model(args: argparse.Namespace) -> int:
 
 def _worker_swap(args: argparse.Namespace) -> int:
     """The service's own objects (no bus): a 30 fps frame thread, and an activation on a control thread."""
-    import shutil
 
-    from courtloc.common.bus import ZenohConfig
-    from courtloc.common.control import Activate, ModelRequest
-    from courtloc.common.messages import Edges, Header
-    from courtloc.localizer.manifest import read_manifest, write_manifest
-    from courtloc.services.infer.config import InferConfig
-    from courtloc.models import bundled_package
-    from courtloc.services.infer.service import InferService
-    from courtloc.common.payloads import hits_to_bytes
 
     frames, width, height = _load_hits(args.hits)
     with tempfile.TemporaryDirectory() as tmp:
@@ -178,9 +176,6 @@ def _child(args: argparse.Namespace, extra: list[str]) -> dict:
 
 
 def paper_models(path: Path) -> list[Path]:
-    from courtloc.localizer.manifest import read_manifest
-    from courtloc.localizer.manifest import PAPER_KINDS
-
     files = sorted(path.glob("*.onnx")) if path.is_dir() else [path]
     found = [f for f in files if read_manifest(f).input.kind in PAPER_KINDS]
     if not found:
@@ -193,7 +188,6 @@ def run(args: argparse.Namespace) -> int:
         return _worker_model(args)
     if args.worker == "swap":
         return _worker_swap(args)
-    from courtloc.models import bundled_package
 
     models = [*(paper_models(args.paper) if args.paper else []), bundled_package()]
     if args.paper is None:

@@ -21,6 +21,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from courtloc.lab.eval import default_model_path
+from courtloc.localizer import motion
+from courtloc.localizer.fit import kernel_active, kernel_enabled
+from courtloc.localizer.geometric import GeometricLocalizer
+from courtloc.localizer.predictor import load_predictor
+from courtloc.sim.edges import scan_hits
+from courtloc.sim.render import Renderer
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,9 +42,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _frames(predictor, n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
-    from courtloc.sim.edges import scan_hits
-    from courtloc.sim.render import Renderer
-
     court, camera = predictor.package.court, predictor.package.camera
     renderer = Renderer(court, camera)
     rng = np.random.default_rng(seed)
@@ -66,10 +70,6 @@ def _timed(fn) -> tuple[float, object]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from courtloc.lab.eval import default_model_path
-    from courtloc.localizer.fit import kernel_active, kernel_enabled
-    from courtloc.localizer.predictor import load_predictor
-
     package = args.package or default_model_path()
     predictor = load_predictor(package, threads=1)
     frames = _frames(predictor, args.frames, args.seed)
@@ -78,11 +78,9 @@ def run(args: argparse.Namespace) -> int:
     compiled = kernel_active()
     sequential = None
     if args.compare_sequential:
-        from courtloc.localizer.geometric import GeometricLocalizer
 
         loc = predictor.localizer
         sequential = GeometricLocalizer(loc.court, loc.camera, loc.config, field=loc.field, batch_starts=False)
-    from courtloc.localizer import motion
 
     motion_cfg = predictor.localizer.config.motion
     ms: dict[str, list[float]] = {k: [] for k in ("track", "track_numpy", "cold", "cold_numpy", "onnx", "seq",

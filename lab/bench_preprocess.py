@@ -20,6 +20,18 @@ import platform
 import time
 from pathlib import Path
 
+import cv2
+import numpy as np
+from courtloc.scan.config import PreprocessConfig
+from courtloc.scan.hsv_mask import WhiteMask
+from courtloc.scan.preprocessor import Preprocessor
+from courtloc.scan.radial_scan import RadialScanner
+from courtloc.scan.reference_scan import reference_preprocess
+from courtloc.scan.synthetic import line_frame
+from courtloc.sim.render import Renderer
+from courtloc.world.camera import load_camera
+from courtloc.world.court import load_court
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", type=Path, default=None, help="write the report here as well")
@@ -61,16 +73,6 @@ class _Rate:
 
 
 def run(args: argparse.Namespace) -> int:
-    import cv2
-    import numpy as np
-
-    from courtloc.scan.config import PreprocessConfig
-    from courtloc.scan.hsv_mask import WhiteMask
-    from courtloc.scan.preprocessor import Preprocessor
-    from courtloc.scan.radial_scan import RadialScanner
-    from courtloc.scan.reference_scan import reference_preprocess
-    from courtloc.scan.synthetic import line_frame
-
     cv2.setNumThreads(1)
     config = PreprocessConfig(frame_width=args.width, frame_height=args.height,
                               crop_top=min(200, args.height - 1))
@@ -147,11 +149,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _twin_frames(court_name: str, n: int, rng, height: int, width: int) -> list:  # noqa: ANN001
     """n clean renders of the court's twin at random poses inside its robot area, as (H, W, 3) BGR."""
-    import numpy as np
 
-    from courtloc.world.camera import load_camera
-    from courtloc.world.court import load_court
-    from courtloc.sim.render import Renderer
 
     court = load_court(court_name)
     camera = load_camera(court.default_camera)

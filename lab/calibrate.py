@@ -16,12 +16,16 @@ import math
 from pathlib import Path
 from typing import Optional, Sequence
 
+import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
-
+from courtloc.sim.edges import dot_centres, scan_hits
+from courtloc.sim.labels import PoseLabels, lag_corrected, read_pose_csv
+from courtloc.sim.render import Renderer
 from courtloc.world.camera import CameraModel
 from courtloc.world.court import Court
-from courtloc.sim.labels import PoseLabels, lag_corrected, read_pose_csv
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.optimize import least_squares
+from scipy.spatial import cKDTree
 
 log = logging.getLogger(__name__)
 
@@ -83,9 +87,7 @@ class CalibrationOptions(BaseModel):
 def load_dot_frames(data_dir: str | Path, csv_path: str | Path, frames: int, lag_s: float, min_dots: int = 20,
                     labels: Optional[PoseLabels] = None) -> DotFrames:
     """Dots of `frames` images spread evenly over the CSV, with lag-corrected poses."""
-    import cv2
 
-    from courtloc.sim.edges import dot_centres
 
     data_dir = Path(data_dir)
     labels = lag_corrected(labels or read_pose_csv(csv_path), lag_s)
@@ -203,9 +205,6 @@ def _subset(dots: DotFrames, use: np.ndarray) -> DotFrames:
 
 
 def calibrate(court: Court, dots: DotFrames, initial: CameraModel, options: CalibrationOptions) -> CalibrationResult:
-    from scipy.optimize import least_squares
-    from scipy.spatial import cKDTree
-
     edges, normals = court.white_edges(options.edge_spacing_m)
     tree = cKDTree(edges)
     template = initial.model_copy(update={"cx": (dots.width - 1) / 2.0, "cy": (dots.height - 1) / 2.0})
@@ -268,11 +267,7 @@ def dot_reproduction(court: Court, camera: CameraModel, data_dir: str | Path, la
 
     The twin frame goes through the real preprocess stage; `labels` should be lag-corrected.
     """
-    import cv2
-    from scipy.spatial import cKDTree
 
-    from courtloc.sim.edges import dot_centres, scan_hits
-    from courtloc.sim.render import Renderer
 
     renderer = Renderer(court, camera)
     out = []

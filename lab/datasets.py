@@ -33,6 +33,10 @@ from typing import Any, Iterable, Literal, Sequence
 
 import cv2
 import numpy as np
+from courtloc.localizer.paper_input import hits_to_dot_image
+from courtloc.scan.config import PreprocessConfig
+from courtloc.scan.preprocessor import Preprocessor
+from courtloc.scan.seed_dots import image_to_hits
 from pydantic import BaseModel
 
 log = logging.getLogger(__name__)
@@ -145,7 +149,6 @@ class Dataset:
             if gray is None:
                 raise DatasetError(f"cannot read image {path}")
             return threshold_dots(gray)
-        from courtloc.localizer.paper_input import hits_to_dot_image
 
         frame = self.read_image(i)
         hits = self._preprocess(frame)
@@ -161,7 +164,6 @@ class Dataset:
         if self.kind == "raw":
             frame = self.read_image(i)
             return self._preprocess(frame), frame.shape[0], frame.shape[1]
-        from courtloc.scan.seed_dots import image_to_hits
 
         dots = self.dot_image(i)
         return image_to_hits(dots * np.uint8(255), split_touching=False), dots.shape[0], dots.shape[1]
@@ -169,8 +171,6 @@ class Dataset:
     def _preprocess(self, frame: np.ndarray) -> np.ndarray:
         """Hits (N x 4 int16: row, col, ray, d) of a raw frame through the runtime preprocessor."""
         if self._preprocessor is None:
-            from courtloc.scan.config import PreprocessConfig
-            from courtloc.scan.preprocessor import Preprocessor  # the robot's own code path
 
             self._preprocessor = Preprocessor(PreprocessConfig(frame_width=None, frame_height=None))
         return np.asarray(self._preprocessor.process(frame))

@@ -18,15 +18,15 @@ from pathlib import Path
 from typing import Optional, Protocol
 
 import numpy as np
-
 from courtloc.lab.datasets import Dataset
+from courtloc.lab.metrics import PoseMetrics, compute_metrics, position_errors
+from courtloc.lab.seed_frames import frame_time
 from courtloc.localizer.manifest import PAPER_KINDS, Manifest, read_manifest
 from courtloc.localizer.model_file import ModelFile
 from courtloc.localizer.predictor import PaperPredictor, load_predictor
-from courtloc.models import bundled_package
-from courtloc.lab.metrics import PoseMetrics, compute_metrics, position_errors
-from courtloc.lab.seed_eval import frame_time
 from courtloc.localizer.tracking import Tracker  # the robot's own tracking rule
+from courtloc.models import bundled_package
+from courtloc.world.court import load_court
 
 log = logging.getLogger(__name__)
 
@@ -127,7 +127,7 @@ def _progress(items: np.ndarray, enabled: bool):  # noqa: ANN202
     """A tqdm bar when asked for and installed (tqdm is not a runtime dependency)."""
     if enabled:
         try:
-            from tqdm import tqdm
+            from tqdm import tqdm  # progress bars: tqdm comes with the train extra
 
             return tqdm(items, unit="frame")
         except ImportError:
@@ -148,10 +148,10 @@ def write_predictions_csv(result: EvalResult, path: Path) -> None:
 def write_plots(result: EvalResult, out_dir: Path, title: str = "") -> list[Path]:
     """Truth vs prediction on the court, error CDF, mean error by court region. [] without matplotlib."""
     try:
-        import matplotlib
+        import matplotlib  # plots: matplotlib comes with the train extra
 
         matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # plots: matplotlib comes with the train extra
     except ImportError:
         log.warning("matplotlib not installed: no plots (numbers are unaffected)")
         return []
@@ -216,8 +216,6 @@ def _save(fig, path: Path, plt) -> Path:  # noqa: ANN001
 
 def _court_half_extent(result: EvalResult) -> tuple[float, float]:
     try:
-        from courtloc.world.court import load_court
-
         court = load_court(result.court)
         return court.length_m / 2, court.width_m / 2
     except Exception:  # unknown court: frame the data instead
@@ -227,8 +225,6 @@ def _court_half_extent(result: EvalResult) -> tuple[float, float]:
 
 def _draw_court(ax, court_name: str, colour: str = "0.75") -> None:  # noqa: ANN001
     try:
-        from courtloc.world.court import load_court
-
         points, _ = load_court(court_name).white_edges(0.03)
     except Exception as exc:
         log.info("no court drawing for %r: %s", court_name, exc)

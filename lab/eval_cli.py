@@ -6,6 +6,8 @@ import json
 from pathlib import Path
 
 from courtloc.lab.dataset_args import add_dataset_arguments
+from courtloc.lab.datasets import Dataset, duplicate_report
+from courtloc.lab.eval import evaluate, open_model, write_plots, write_predictions_csv
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,8 +35,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _dataset(args: argparse.Namespace) -> int:
-    from courtloc.lab.datasets import Dataset, duplicate_report
-
     dataset = Dataset(args.data, csv_path=args.csv, kind=args.kind)
     result = duplicate_report(dataset, args.jaccard)
     print(json.dumps({"frames": len(dataset), "recordings": {r: int((dataset.recordings == r).sum())
@@ -44,9 +44,6 @@ def _dataset(args: argparse.Namespace) -> int:
 
 
 def _eval(args: argparse.Namespace) -> int:
-    from courtloc.lab.datasets import Dataset
-    from courtloc.lab.eval import evaluate, open_model, write_plots, write_predictions_csv
-
     dataset = Dataset(args.data, csv_path=args.csv, kind=args.kind)
     indices = dataset.indices_of(args.recordings) if args.recordings else None
     model = open_model(args.model, threads=args.threads, tracking=not args.no_tracking)

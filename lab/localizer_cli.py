@@ -6,6 +6,21 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+from courtloc.lab.datasets import load_dataset
+from courtloc.lab.eval import default_model_path
+from courtloc.lab.package_build import build_package
+from courtloc.lab.report import markdown_report
+from courtloc.lab.residuals import residual_table
+from courtloc.lab.seed_eval import apply_settings, cross_recording
+from courtloc.lab.seed_frames import load_seed_frames
+from courtloc.localizer.config import LocalizerConfig
+from courtloc.localizer.court_field import CourtField
+from courtloc.localizer.manifest import TrainingData
+from courtloc.localizer.package import load_package
+from courtloc.world.camera import load_camera
+from courtloc.world.court import load_court
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("localizer", help="geometric localizer: build a package, cross-recording evaluation")
@@ -51,18 +66,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _config(path: Path | None):
-    from courtloc.localizer.config import LocalizerConfig
-
     return LocalizerConfig.model_validate_json(path.read_text()) if path else LocalizerConfig()
 
 
 def _build(args: argparse.Namespace) -> int:
-    from courtloc.localizer.manifest import TrainingData
-    from courtloc.lab.package_build import build_package
-    from courtloc.lab.report import markdown_report
-    from courtloc.world.camera import load_camera
-    from courtloc.world.court import load_court
-
     court, camera, config = load_court(args.court), load_camera(args.camera), _config(args.config)
     report = json.loads(args.report.read_text()) if args.report else None
     metrics, data = {}, None
@@ -83,17 +90,12 @@ def _build(args: argparse.Namespace) -> int:
 
 def _fingerprint(args: argparse.Namespace) -> str:
     """Dataset.fingerprint of the frames crosseval used (every step-th), for the package manifest."""
-    from courtloc.lab.datasets import load_dataset
 
     dataset = load_dataset(args.data, args.csv, kind="dots")
     return dataset.fingerprint(range(0, len(dataset), args.step))
 
 
 def _crosseval(args: argparse.Namespace) -> int:
-    from courtloc.lab.seed_eval import apply_settings, cross_recording, load_seed_frames
-    from courtloc.world.camera import load_camera
-    from courtloc.world.court import load_court
-
     frames = load_seed_frames(args.data, args.csv, args.lag_s, args.step)
     base = _config(args.config)
     report = cross_recording(load_court(args.court), load_camera(args.camera), frames, base,
@@ -118,14 +120,6 @@ def _crosseval(args: argparse.Namespace) -> int:
 
 
 def _residuals(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from courtloc.localizer.court_field import CourtField
-    from courtloc.lab.eval import default_model_path
-    from courtloc.localizer.package import load_package
-    from courtloc.lab.residuals import residual_table
-    from courtloc.lab.seed_eval import load_seed_frames
-
     package = load_package(args.model or default_model_path())
     config = package.config
     if args.no_band_bias:

@@ -14,8 +14,8 @@ from __future__ import annotations
 from typing import Optional
 
 import numpy as np
-from pydantic import BaseModel
 from courtloc.world.angles import wrap_angle
+from pydantic import BaseModel
 
 
 class PoseMetrics(BaseModel):

@@ -17,6 +17,9 @@ import time
 from pathlib import Path
 
 import numpy as np
+from courtloc.lab.datasets import Dataset
+from courtloc.lab.eval import PaperOnnxModel
+from courtloc.lab.metrics import compute_metrics
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,7 +35,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _frames(args: argparse.Namespace):  # noqa: ANN202
-    from courtloc.lab.datasets import Dataset
 
     dataset = Dataset(args.data, csv_path=args.csv)
     chosen = dataset.indices_of(args.recordings) if args.recordings else np.arange(len(dataset))
@@ -43,8 +45,6 @@ def _frames(args: argparse.Namespace):  # noqa: ANN202
 
 def _worker(args: argparse.Namespace) -> int:
     """Measure one model (args.model[0]) and print its row as JSON."""
-    from courtloc.lab.eval import PaperOnnxModel
-    from courtloc.lab.metrics import compute_metrics
 
     name, path = args.model[0].split("=", 1)
     dataset, chosen = _frames(args)

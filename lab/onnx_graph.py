@@ -10,6 +10,8 @@ code. Pixels outside the image or seeing no floor within range give NaN (dropped
 from __future__ import annotations
 
 import numpy as np
+import onnx
+from onnx import TensorProto, helper, numpy_helper
 
 INPUT = "hits"
 OUTPUT = "floor_xy"
@@ -17,8 +19,6 @@ OPSET = 17
 
 
 def build_graph(table: np.ndarray, height: int, width: int):  # -> onnx.ModelProto
-    import onnx
-    from onnx import TensorProto, helper, numpy_helper
 
     if table.shape != (height * width, 2):
         raise ValueError(f"floor table shape {table.shape} does not match a {width}x{height} frame")

@@ -5,11 +5,18 @@ import logging
 from pathlib import Path
 
 import onnx
-
 from courtloc.lab.onnx_graph import INPUT, OUTPUT, build_graph
 from courtloc.localizer.config import LocalizerConfig
-from courtloc.localizer.manifest import (MODEL_FILE, InputSpec, Manifest, OutputSpec, TensorSpec, TrainingData,
-                                         attach_manifest, runtime_preprocessing)
+from courtloc.localizer.manifest import (
+    MODEL_FILE,
+    InputSpec,
+    Manifest,
+    OutputSpec,
+    TensorSpec,
+    TrainingData,
+    attach_manifest,
+    runtime_preprocessing,
+)
 from courtloc.localizer.package import CAMERA_FILE, CONFIG_FILE, COURT_FILE, KIND, file_sha256
 from courtloc.localizer.projection import build_floor_table
 from courtloc.world.camera import CameraModel

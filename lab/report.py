@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from courtloc.lab.seed_eval import chosen_settings
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.manifest import Manifest
 
@@ -90,7 +91,6 @@ def markdown_report(manifest: Manifest, config: LocalizerConfig, report: dict | 
 
 def _evaluation_section(report_dir: Path, config: LocalizerConfig, report: dict | None) -> list[str]:
     """This package's own `courtloc eval` runs (report/eval_<recording>.json) and the plots beside them."""
-    from courtloc.lab.seed_eval import chosen_settings
 
     runs = sorted(report_dir.glob("eval_*.json"))
     if not runs:

@@ -11,13 +11,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
+from courtloc.lab.seed_frames import SeedFrames
 from courtloc.localizer.config import FitConfig, LocalizerConfig
 from courtloc.localizer.court_field import CourtField, is_thin_band
-from courtloc.localizer.projection import FloorProjector, ProjectedHits
-from courtloc.lab.seed_eval import SeedFrames
-from courtloc.world.camera import CameraModel
 from courtloc.localizer.fit import FrameTerms, frame_residuals
+from courtloc.localizer.projection import FloorProjector, ProjectedHits
+from courtloc.world.camera import CameraModel
 
 RANGE_EDGES_M = (0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0)
 MIN_HITS = 30

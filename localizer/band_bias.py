@@ -19,9 +19,8 @@ here for the numpy fit, `band_offset` in fit_kernel.c (tested equal).
 from __future__ import annotations
 
 import numpy as np
-
 from courtloc.localizer.config import FitConfig
-from courtloc.localizer.court_field import CourtField, is_thin_band
+from courtloc.localizer.court_field import is_thin_band
 
 
 def offset_m(half_width: np.ndarray, step_normal_m: np.ndarray, cfg: FitConfig) -> np.ndarray:

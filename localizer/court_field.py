@@ -16,6 +16,7 @@ import logging
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 log = logging.getLogger(__name__)
@@ -212,7 +213,6 @@ class CourtField:
         which lies (2 * half-width - depth) ahead. A hit just past a thin band's far edge is further out
         than one past a wide band's (band_bias.py): the fit looks up the band it belongs to here.
         """
-        import cv2
 
         depth = np.maximum(-self.values, 0.0).astype(np.float32)
         k = 2 * int(round(reach_m / self.resolution)) + 1
@@ -290,7 +290,6 @@ class CourtField:
 
 def _raster_sdf(court, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
     """Fallback: distance transforms of the court's white mask at half the grid spacing."""
-    import cv2
 
     res = float(xs[1] - xs[0]) / 2
     mask, transform = court.white_mask_topdown(res)

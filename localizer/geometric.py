@@ -16,7 +16,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from courtloc.localizer import motion
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.court_field import CourtField
@@ -26,7 +25,6 @@ from courtloc.localizer.search import CoarseSearch
 from courtloc.localizer.symmetry import by_half, by_previous, mirror
 from courtloc.world.camera import CameraModel
 from courtloc.world.court import Court
-
 
 # Restarts around the previous pose when the plain tracking fit fails: (dx m, dy m, dyaw rad).
 _TRACK_RESTARTS = [(0.0, 0.0, 0.07), (0.0, 0.0, -0.07), (0.25, 0.0, 0.0), (-0.25, 0.0, 0.0), (0.0, 0.25, 0.0),

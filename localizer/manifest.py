@@ -17,6 +17,9 @@ import json
 from pathlib import Path
 from typing import Literal, Optional, Union
 
+import onnx
+from courtloc.scan.config import DEFAULT_HSV_RANGES, ScanConfig
+from onnx import numpy_helper
 from pydantic import BaseModel, ConfigDict, Field
 
 MANIFEST_KEY = "courtloc.manifest"
@@ -69,7 +72,6 @@ def runtime_preprocessing(width: int = 640, height: int = 480, crop_top: int = 2
     """The preprocess stage's own defaults for a width x height frame, so that a manifest states what the
     robot will do (the scan origin is the last row's centre: where the seed images' rays start, see
     docs/preprocess.md)."""
-    from courtloc.scan.config import DEFAULT_HSV_RANGES, ScanConfig
 
     scan = ScanConfig()
     return PreprocessSpec(frame_width=width, frame_height=height, crop_top=crop_top,
@@ -115,7 +117,6 @@ class ManifestError(ValueError):
 
 
 def weights_sha256(model: "onnx.ModelProto") -> str:  # noqa: F821 - onnx imported lazily
-    from onnx import numpy_helper
 
     digest = hashlib.sha256()
     for tensor in model.graph.initializer:
@@ -128,7 +129,6 @@ def weights_sha256(model: "onnx.ModelProto") -> str:  # noqa: F821 - onnx import
 
 
 def _load(onnx_path: Path, with_weights: bool) -> "onnx.ModelProto":  # noqa: F821
-    import onnx
 
     if not Path(onnx_path).is_file():
         raise ManifestError(f"model file not found: {onnx_path}")
@@ -163,7 +163,6 @@ def attach_manifest(model: "onnx.ModelProto", manifest: Manifest) -> Manifest:  
 
 def write_manifest(onnx_path: Path, manifest: Manifest) -> Manifest:
     """Store `manifest` in the file (replacing any old one); returns it with weights_sha256 filled in."""
-    import onnx
 
     model = _load(onnx_path, with_weights=True)
     final = attach_manifest(model, manifest)

@@ -11,6 +11,7 @@ Both give the same network output (tested). A sparse input with K = 0 is valid (
 from __future__ import annotations
 
 import numpy as np
+from courtloc.scan.seed_dots import draw_hits
 
 FRAME_HEIGHT = 480
 FRAME_WIDTH = 640
@@ -27,7 +28,6 @@ def hits_to_dot_image(hits: np.ndarray, height: int = FRAME_HEIGHT, width: int =
     `hits` is N x >=2 with (row, col) first — the `Edges` message's int16 (row, col, ray, d) rows fit.
     Drawn by the preprocess stage's own `draw_hits`, so live hits and seed images give the same pixels.
     """
-    from courtloc.scan.seed_dots import draw_hits
 
     hits = np.asarray(hits)
     if hits.size == 0:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
 from courtloc.localizer.config import Half
 from courtloc.world.angles import wrap_angle
 

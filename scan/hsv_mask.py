@@ -11,7 +11,6 @@ from typing import Sequence
 
 import cv2
 import numpy as np
-
 from courtloc.scan.config import HsvRange
 
 

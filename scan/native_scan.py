@@ -13,13 +13,17 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
+try:
+    from courtloc.scan import _scan_kernel
+    _MISSING = ""
+except ImportError as exc:  # no C compiler at install time: the numpy scan serves
+    _scan_kernel = None
+    _MISSING = str(exc)
+
 
 def load_kernel() -> ModuleType | None:
-    try:
-        from courtloc.scan import _scan_kernel
-    except ImportError as exc:
-        log.info("compiled radial scan not built (%s); using the numpy scan", exc)
-        return None
+    if _scan_kernel is None:
+        log.info("compiled radial scan not built (%s); using the numpy scan", _MISSING)
     return _scan_kernel
 
 

@@ -11,9 +11,8 @@ from typing import Optional
 
 import cv2
 import numpy as np
-
-from courtloc.scan.config import ScanConfig
 from courtloc.common.payloads import HIT_DTYPE
+from courtloc.scan.config import ScanConfig
 from courtloc.scan.radial_scan import RadialScanner, empty_hits
 
 # JPEG noise in the seed images stays below ~16 and dot pixels above ~240; anything between is safe.

@@ -13,10 +13,11 @@ height-at-ring minus ring height, which rises monotonically with speed.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
+from scipy.optimize import brentq, minimize_scalar
 
 G = 9.81
 _STEPS_PER_M = 10  # RK4 steps per metre of flight: height error ~1e-8 m against a 40-per-metre run
@@ -84,7 +85,6 @@ def rpm_for_speed(speed_mps: float, model: ShotModel) -> float:
 
 def solve(distance_m: float, model: ShotModel) -> ShotSolve:
     """Launch speed and wheel RPM that put the ball through the ring centre `distance_m` away."""
-    from scipy.optimize import brentq
 
     def miss(speed: float) -> float:
         return fly_to(distance_m, speed, model)[0] - model.ring_height_m
@@ -132,9 +132,7 @@ def fit(distances_m: Sequence[float], rpms: Sequence[float], base: ShotModel, fi
     For a given drag the RPM is proportional to 1/slip, so slip has a closed form; drag is a bounded
     1-D search. The release height, ring height, angle and wheel radius stay as given.
     """
-    from dataclasses import replace
 
-    from scipy.optimize import minimize_scalar
 
     d = np.asarray(distances_m, dtype=float)
     y = np.asarray(rpms, dtype=float)

@@ -15,7 +15,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from typing import Optional, Sequence, Union
+
 from courtloc.world.angles import wrap_angle
+from courtloc.world.court import load_court
 
 Basket = Union[str, int]
 
@@ -90,7 +92,6 @@ def ring_for(court_name: str, basket: Basket) -> tuple[float, float, float]:
     `basket` is 'positive_x' / 'negative_x' (the ring on that half of the court) or an index into the
     court's ring list.
     """
-    from courtloc.world.court import load_court  # the court model lives with the simulator
 
     rings = [(ring.x, ring.y, ring.z) for ring in load_court(court_name).rings]
     if not rings:

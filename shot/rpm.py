@@ -15,14 +15,11 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Optional, Protocol, Sequence
+from typing import Callable, Optional, Protocol, Sequence
 
 import numpy as np
-
 from courtloc.shot import ballistics
-
-if TYPE_CHECKING:
-    from courtloc.services.shooter_bridge.config import ShooterConfig
+from scipy.interpolate import PchipInterpolator
 
 log = logging.getLogger(__name__)
 
@@ -44,8 +41,6 @@ class RpmLookup:
 
 class RpmTable:
     def __init__(self, distances_m: Sequence[float], rpms: Sequence[float], source: str = "<table>") -> None:
-        from scipy.interpolate import PchipInterpolator
-
         d = np.asarray(distances_m, dtype=float)
         r = np.asarray(rpms, dtype=float)
         if d.size < 2:
@@ -230,12 +225,3 @@ class PriorSource:
         m = self.model
         return (f"physics prior ({m.launch_angle_deg:g} deg, release {m.release_height_m:g} m, drag {m.drag_per_m:g}/m, "
                 f"slip {m.slip:g}, wheel r {m.wheel_radius_m:g} m; {self.table.range_m[0]:.2f}..{self.table.range_m[1]:.2f} m)")
-
-
-def make_rpm_source(config: "ShooterConfig", ring_height_m: float) -> RpmSource:
-    """The configured table (watched for changes) or, without one, the physics prior."""
-    if config.rpm.table is not None:
-        return TableWatcher(config.rpm.table, config.rpm.reload_interval_s)
-    physics = config.rpm.physics
-    return PriorSource(physics.model(config.mount.release_height_m, ring_height_m),
-                       physics.min_distance_m, physics.max_distance_m)

@@ -5,6 +5,13 @@ import argparse
 import json
 import time
 
+import numpy as np
+from courtloc.sim.edges import scan_hits
+from courtloc.sim.render import Renderer, RenderOptions
+from courtloc.world.camera import load_camera
+from courtloc.world.court import load_court
+from scipy.spatial import cKDTree
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--court", default="seed-gazebo", help="court name or JSON path")
@@ -17,12 +24,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from courtloc.world.camera import load_camera
-    from courtloc.world.court import load_court
-    from courtloc.sim.render import Renderer, RenderOptions
-
     court = load_court(args.court)
     camera = load_camera(args.camera or court.default_camera)
     renderer = Renderer(court, camera)
@@ -59,10 +60,7 @@ def _realism(renderer, court, poses, options, seed: int) -> tuple[float, float]:
     """Mean hits per frame of the real preprocess stage, and the fraction that back-project to within
     10 cm of a white edge of the court (far-away hits span more than 10 cm per pixel, so even a perfect
     twin stays below 1)."""
-    import numpy as np
-    from scipy.spatial import cKDTree
 
-    from courtloc.sim.edges import scan_hits
 
     tree = cKDTree(court.white_edges(0.01)[0])
     counts, fractions = [], []

@@ -8,7 +8,25 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import sys
+import time
+
+import numpy as np
+from courtloc.lab.calibrate import (
+    SEED_LAG_S,
+    CalibrationOptions,
+    calibrate,
+    dot_reproduction,
+    load_dot_frames,
+    nominal_camera,
+)
+from courtloc.sim.labels import lag_corrected, read_pose_csv
+from courtloc.sim.render import RenderOptions
+from courtloc.sim.synth import SynthConfig, synth
+from courtloc.world.camera import load_camera
+from courtloc.world.court import load_court
+from pydantic import ValidationError
 
 # Modules adding sub-commands to `courtloc dataset` (this module adds `synth` itself).
 DATASET_COMMAND_MODULES: tuple[str, ...] = ("courtloc.recording.cli",)
@@ -39,14 +57,6 @@ def _register_synth(dataset_sub: argparse._SubParsersAction) -> None:
 
 
 def _synth(args: argparse.Namespace) -> int:
-    import json
-    import time
-
-    from pydantic import ValidationError
-
-    from courtloc.sim.render import RenderOptions
-    from courtloc.sim.synth import SynthConfig, synth
-
     try:
         render = None
         if args.render_options:
@@ -93,16 +103,6 @@ def _register_calibrate(sub: argparse._SubParsersAction) -> None:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    import json
-
-    import numpy as np
-
-    from courtloc.lab.calibrate import (SEED_LAG_S, CalibrationOptions, calibrate, dot_reproduction,
-                                        load_dot_frames, nominal_camera)
-    from courtloc.world.camera import load_camera
-    from courtloc.world.court import load_court
-    from courtloc.sim.labels import lag_corrected, read_pose_csv
-
     lag = SEED_LAG_S if args.lag is None else args.lag
     try:
         court = load_court(args.court)

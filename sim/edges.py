@@ -8,13 +8,13 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+from courtloc.scan.config import PreprocessConfig
+from courtloc.scan.preprocessor import Preprocessor
+from courtloc.scan.seed_dots import dots_to_hits, draw_hits
 
 
 @lru_cache(maxsize=1)
 def _preprocessor():
-    from courtloc.scan.config import PreprocessConfig
-    from courtloc.scan.preprocessor import Preprocessor
-
     return Preprocessor(PreprocessConfig())
 
 
@@ -25,7 +25,6 @@ def scan_hits(bgr: np.ndarray) -> np.ndarray:
 
 def dot_centres(image: np.ndarray) -> np.ndarray:
     """(N, 2) float (u, v) = (column, row) centres of the white dots of a seed-style edge image."""
-    from courtloc.scan.seed_dots import dots_to_hits
 
     rows_cols = dots_to_hits(image)
     return rows_cols[:, ::-1].astype(float)
@@ -33,6 +32,5 @@ def dot_centres(image: np.ndarray) -> np.ndarray:
 
 def hits_image(hits: np.ndarray, height: int, width: int) -> np.ndarray:
     """The seed-style dot image (white radius-2 dots on black) of hits."""
-    from courtloc.scan.seed_dots import draw_hits
 
     return draw_hits(hits, height, width)

@@ -10,10 +10,11 @@ from pathlib import Path
 from typing import Literal, Optional
 
 import numpy as np
+from courtloc.sim.render import Renderer, RenderOptions
+from courtloc.sim.trajectory import CsvTrajectory, RandomWalkTrajectory, WaypointTrajectory
+from courtloc.world.camera import Pose, load_camera
+from courtloc.world.court import load_court
 from pydantic import BaseModel, ConfigDict, Field
-
-from courtloc.world.camera import Pose
-from courtloc.sim.render import RenderOptions
 
 log = logging.getLogger(__name__)
 
@@ -48,10 +49,6 @@ class SimSource:
 
     # ---- lifecycle ------------------------------------------------------------------------------
     def open(self) -> "SimSource":
-        from courtloc.world.camera import load_camera
-        from courtloc.world.court import load_court
-        from courtloc.sim.render import Renderer
-
         cfg = self.config
         court = load_court(cfg.court)
         camera = load_camera(cfg.camera or court.default_camera)
@@ -105,8 +102,6 @@ class SimSource:
 
     # ---- setup ----------------------------------------------------------------------------------
     def _build_trajectory(self, court):
-        from courtloc.sim.trajectory import CsvTrajectory, RandomWalkTrajectory, WaypointTrajectory
-
         cfg = self.config
         hx, hy = court.area_half_extent_m
         where = f"court {court.name!r} (|x| <= {hx}, |y| <= {hy})"

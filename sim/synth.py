@@ -13,11 +13,14 @@ import os
 from pathlib import Path
 from typing import Callable, Literal, Optional
 
+import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
-
+from courtloc.sim.edges import hits_image, scan_hits
 from courtloc.sim.labels import SEED_COLUMNS, yaw_to_orientation_z
-from courtloc.sim.render import RenderOptions
+from courtloc.sim.render import Renderer, RenderOptions
+from courtloc.world.camera import load_camera
+from courtloc.world.court import load_court
+from pydantic import BaseModel, ConfigDict, Field
 
 log = logging.getLogger(__name__)
 
@@ -79,12 +82,7 @@ def _read_rows(path: Path) -> dict[str, list[str]]:
 
 def synth(config: SynthConfig, progress: Callable[[int, int, int], None] | None = None) -> dict:
     """Write the dataset; returns counts. progress(done, total, written) is called after each frame."""
-    import cv2
 
-    from courtloc.world.camera import load_camera
-    from courtloc.world.court import load_court
-    from courtloc.sim.edges import hits_image, scan_hits
-    from courtloc.sim.render import Renderer
 
     court = load_court(config.court)
     camera = load_camera(config.camera or court.default_camera)

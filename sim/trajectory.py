@@ -11,19 +11,14 @@ import bisect
 import csv
 import math
 from pathlib import Path
-from typing import Protocol, Sequence
+from typing import Sequence
 
 import numpy as np
-
-from courtloc.world.court import Court
 from courtloc.sim.labels import orientation_z_to_yaw
 from courtloc.world.angles import wrap_angle
+from courtloc.world.court import Court
 
 Pose = tuple[float, float, float]
-
-
-class Trajectory(Protocol):
-    def pose_at(self, t: float) -> Pose: ...
 
 
 class _Legs:

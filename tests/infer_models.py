@@ -16,13 +16,20 @@ from pathlib import Path
 
 import numpy as np
 import onnx
-from onnx import TensorProto, helper, numpy_helper
-
 from courtloc.common.messages import Edges, Header
-from courtloc.localizer.manifest import (InputSpec, Manifest, OutputSpec, PreprocessSpec, TensorSpec,
-                                         attach_manifest, read_manifest, write_manifest)
-from courtloc.models import bundled_package as bundled_default
 from courtloc.common.payloads import hits_to_bytes
+from courtloc.localizer.manifest import (
+    InputSpec,
+    Manifest,
+    OutputSpec,
+    PreprocessSpec,
+    TensorSpec,
+    attach_manifest,
+    read_manifest,
+    write_manifest,
+)
+from courtloc.models import bundled_package as bundled_default
+from onnx import TensorProto, helper, numpy_helper
 
 COURT = CAMERA = "seed-gazebo"
 WIDTH, HEIGHT, CROP_TOP = 640, 480, 200
@@ -34,9 +41,9 @@ class TwinFrames:
     def __init__(self, poses: list[tuple[float, float, float]]) -> None:
         from courtloc.scan.config import PreprocessConfig
         from courtloc.scan.preprocessor import Preprocessor
+        from courtloc.sim.render import Renderer
         from courtloc.world.camera import load_camera
         from courtloc.world.court import load_court
-        from courtloc.sim.render import Renderer
 
         camera = load_camera(CAMERA)
         assert (camera.width, camera.height) == (WIDTH, HEIGHT)

@@ -4,7 +4,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
 from buskit import BusClient, folder_camera_toml, free_port, start_router, start_stage, write_config, write_line_frames
 
 pytestmark = pytest.mark.integration

@@ -7,7 +7,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
 from buskit import BusClient, folder_camera_toml, free_port, start_router, start_stage, write_config
 
 pytestmark = pytest.mark.integration

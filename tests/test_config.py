@@ -3,8 +3,8 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from courtloc.common.config_loader import ConfigError
+
 from courtloc.deployment import DeploymentConfig, load_deployment
 
 

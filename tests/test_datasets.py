@@ -7,10 +7,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
+from courtloc.lab.datasets import (
+    DatasetError,
+    duplicate_report,
+    load_dataset,
+    read_labels,
+    recording_of,
+    split_by_recording,
+)
 from courtloc.localizer import paper_input
-from courtloc.lab.datasets import (DatasetError, duplicate_report, load_dataset, read_labels,
-                                         recording_of, split_by_recording)
 from courtloc.training.toy_data import write_toy_dataset
 
 
@@ -103,7 +108,6 @@ def test_seed_dataset_loads(seed_dir: Path) -> None:
 
 def test_raw_frames_go_through_the_preprocessor(tmp_path: Path) -> None:
     import cv2
-
     from courtloc.scan.config import PreprocessConfig
     from courtloc.scan.preprocessor import Preprocessor
     from courtloc.scan.synthetic import line_frame

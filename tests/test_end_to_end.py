@@ -13,10 +13,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from buskit import BusClient, endpoint, free_port
-from courtloc.shot.geometry import Pose2D, ShooterMount, aim, ring_for
 from courtloc.services.shooter_bridge.protocol import Command
+from courtloc.shot.geometry import Pose2D, ShooterMount, aim, ring_for
 from courtloc.shot.rpm import RpmTable
 from test_shooter_link import FakeMcu
 

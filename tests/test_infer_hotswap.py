@@ -10,7 +10,6 @@ from typing import Iterator
 import numpy as np
 import pytest
 import zenoh
-
 from buskit import PYTHON, BusClient, free_port, start_router, start_stage, write_config
 from courtloc.common import codec
 from courtloc.common.services_table import TOPICS

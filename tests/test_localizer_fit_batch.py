@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import fit_pose, fit_poses
 from courtloc.localizer.geometric import GeometricLocalizer

@@ -6,12 +6,11 @@ import math
 
 import numpy as np
 import pytest
-
+from courtloc.lab.package_build import build_package
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import fit_pose
 from courtloc.localizer.geometric import GeometricLocalizer
 from courtloc.localizer.manifest import ManifestError
-from courtloc.lab.package_build import build_package
 from courtloc.localizer.predictor import load_predictor
 from courtloc.localizer.projection import FloorProjector
 from courtloc.localizer.symmetry import by_previous, mirror
@@ -160,7 +159,7 @@ def test_wrong_frame_size_is_refused(package, twin_hits):
 @pytest.mark.seed
 def test_real_seed_frames_within_target(seed_dir, twin):
     """Every 150th seed frame, fit from the previous frame's label (a tracking start)."""
-    from courtloc.lab.seed_eval import load_seed_frames
+    from courtloc.lab.seed_frames import load_seed_frames
 
     court, camera, loc = twin
     pairs = [k for i in range(40, 5740, 150) for k in (i - 1, i)]

@@ -14,7 +14,6 @@ import math
 
 import numpy as np
 import pytest
-
 from courtloc.localizer import fit_kernel
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import fit_poses, kernel_active, kernel_enabled

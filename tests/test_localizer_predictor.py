@@ -3,9 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from courtloc.localizer.manifest import (InputSpec, Manifest, ManifestError, OutputSpec, TensorSpec,
-                                         attach_manifest)
+from courtloc.localizer.manifest import InputSpec, Manifest, ManifestError, OutputSpec, TensorSpec, attach_manifest
 from courtloc.localizer.predictor import load_predictor
 
 H, W = 280, 640

@@ -5,11 +5,11 @@ import json
 import shutil
 from pathlib import Path
 
-from courtloc.localizer.config import LocalizerConfig
 from courtloc.lab.eval import default_model_path
-from courtloc.localizer.manifest import read_manifest
 from courtloc.lab.report import markdown_report
 from courtloc.lab.seed_eval import chosen_settings
+from courtloc.localizer.config import LocalizerConfig
+from courtloc.localizer.manifest import read_manifest
 
 METRICS = {"n": 40, "mse": 0.001, "mae_x": 0.01, "mae_y": 0.01, "mean_err_m": 0.0226, "median_err_m": 0.0158,
            "p95_err_m": 0.0550, "yaw_median_deg": 0.295}

@@ -7,11 +7,19 @@ import numpy as np
 import onnx
 import onnxruntime as ort
 import pytest
+from courtloc.localizer.manifest import (
+    InputSpec,
+    Manifest,
+    ManifestError,
+    OutputSpec,
+    TensorSpec,
+    TrainingData,
+    read_manifest,
+    verify_weights,
+    weights_sha256,
+    write_manifest,
+)
 from onnx import TensorProto, helper, numpy_helper
-
-from courtloc.localizer.manifest import (InputSpec, Manifest, ManifestError, OutputSpec, TensorSpec,
-                                         TrainingData, read_manifest, verify_weights, weights_sha256,
-                                         write_manifest)
 
 
 def _tiny_model(path: Path, weight: np.ndarray) -> None:

@@ -18,7 +18,6 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-
 from buskit import BusClient, free_port, start_router
 from test_monitor import RobotPublisher, start_monitor, wait_state
 

@@ -7,9 +7,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
 from buskit import PYTHON, BusClient, Proc, endpoint, free_port, start_router, start_stage, write_config
-from courtloc.deployment import available_stages, load_deployment
+
+from courtloc.deployment import load_deployment
 
 pytestmark = pytest.mark.integration
 
@@ -35,7 +35,6 @@ def _start_router_joining(tmp_path: Path, port: int, upstream: int) -> Proc:
     return router
 
 
-@pytest.mark.skipif("preprocess" not in available_stages(), reason="preprocess stage not available")
 def test_chain_crosses_two_routers(tmp_path: Path) -> None:
     port_robot, port_laptop = free_port(), free_port()
     robot_router = start_router(port_robot)

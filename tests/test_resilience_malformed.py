@@ -10,32 +10,22 @@ transit; nothing waits per message.
 from __future__ import annotations
 
 import random
-from pathlib import Path
 from typing import Iterator
 
 import msgpack
 import pytest
 import zenoh
-
 from buskit import BusClient, Proc, free_port, start_router, start_stage, write_config
 from courtloc.common.messages import SCHEMA_VERSION, Header
 from courtloc.common.services_table import SERVICES, TOPICS
-from courtloc.deployment import available_stages
 
 pytestmark = pytest.mark.integration
 
 BURST = 10_000
 
 
-def _bundled_model_present() -> bool:
-    from importlib.resources import files
-
-    return (Path(str(files("courtloc.models"))) / "default").is_dir()
-
-
 def _stages_under_test() -> list[str]:
-    runnable = [s for s in available_stages() if SERVICES[s].inputs]
-    return [s for s in runnable if s != "infer" or _bundled_model_present()]
+    return [s for s in SERVICES if SERVICES[s].inputs]
 
 
 def malformed_payloads(n: int, robot_id: str, seed: int = 0) -> Iterator[bytes]:

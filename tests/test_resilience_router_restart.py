@@ -10,9 +10,8 @@ import time
 from pathlib import Path
 
 import pytest
-
 from buskit import BusClient, folder_camera_toml, free_port, start_router, start_stage, write_config, write_line_frames
-from courtloc.deployment import available_stages
+from courtloc.common.services_table import SERVICES
 
 pytestmark = pytest.mark.integration
 
@@ -24,12 +23,6 @@ def _chain_config(tmp_path: Path, port: int) -> Path:
     return write_config(tmp_path / "chain.toml", port, folder_camera_toml(folder))
 
 
-def _bundled_model_present() -> bool:
-    from importlib.resources import files
-
-    return (Path(str(files("courtloc.models"))) / "default").is_dir()
-
-
 def _sent_after(message: object, ready_ns: int) -> bool:
     """Data: the newest stamp is the stage's own (monotonic clocks agree across processes on one host).
     Health has no stamp, but nothing crossed while no router ran, so any health sample is new."""
@@ -38,7 +31,7 @@ def _sent_after(message: object, ready_ns: int) -> bool:
 
 
 def test_all_stages_resume_after_router_restart(tmp_path: Path) -> None:
-    stages = [s for s in available_stages() if s != "infer" or _bundled_model_present()]
+    stages = list(SERVICES)
     data = {"camera": "camera/frame", "preprocess": "preprocess/edges"}  # streams that flow without a model
     port = free_port()
     router = start_router(port)

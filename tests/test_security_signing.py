@@ -4,10 +4,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
 from courtloc.common.security import BundleLayout
-from courtloc.security.signing import (
-    ModelSignatureError, generate_signing_key, sign_model, signature_path, verify_model,
+from courtloc.common.signing import (
+    ModelSignatureError,
+    generate_signing_key,
+    sign_model,
+    signature_path,
+    verify_model,
 )
 
 

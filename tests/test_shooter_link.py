@@ -15,12 +15,11 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 import pytest
-
 from courtloc.services.shooter_bridge.config import AreaConfig, LinkConfig, PolicyConfig
-from courtloc.shot.geometry import Pose2D, ShooterMount
 from courtloc.services.shooter_bridge.link import McuLink, backoff_delays
 from courtloc.services.shooter_bridge.policy import ShotPolicy, build_area
 from courtloc.services.shooter_bridge.protocol import Command, HoldReason, McuFrame, StreamDecoder, encode
+from courtloc.shot.geometry import Pose2D, ShooterMount
 from courtloc.shot.rpm import RpmTable
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs pseudo-terminals")

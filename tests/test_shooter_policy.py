@@ -4,11 +4,10 @@ from __future__ import annotations
 import math
 
 import pytest
-
 from courtloc.services.shooter_bridge.config import AreaConfig, PolicyConfig, ShooterConfig
-from courtloc.shot.geometry import Pose2D, ShooterMount
 from courtloc.services.shooter_bridge.policy import ShotPolicy, build_area, build_policy, polygon_area
 from courtloc.services.shooter_bridge.protocol import Command, Flag, HoldReason
+from courtloc.shot.geometry import Pose2D, ShooterMount
 from courtloc.shot.rpm import RpmLookup, RpmTable
 
 RING = (6.0, 0.0, 2.43)

@@ -6,9 +6,16 @@ import struct
 from pathlib import Path
 
 import pytest
-
 from courtloc.services.shooter_bridge.protocol import (
-    FRAME_V1_SIZE, Command, FrameError, McuFrame, StreamDecoder, crc16_ccitt_false, decode, encode)
+    FRAME_V1_SIZE,
+    Command,
+    FrameError,
+    McuFrame,
+    StreamDecoder,
+    crc16_ccitt_false,
+    decode,
+    encode,
+)
 
 
 def test_crc_check_value() -> None:

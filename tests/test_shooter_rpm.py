@@ -6,7 +6,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from courtloc.shot.rpm import RpmTable, TableError, TableWatcher
 
 REPO = Path(__file__).resolve().parents[1]

@@ -5,15 +5,21 @@ import json
 
 import numpy as np
 import pytest
-
-from courtloc.cli import main
-from courtloc.lab.calibrate import (SEED_LAG_S, CalibrationOptions, calibrate, dot_reproduction, load_dot_frames,
-                                    nominal_camera)
-from courtloc.world.camera import load_camera
-from courtloc.world.court import load_court
+from courtloc.lab.calibrate import (
+    SEED_LAG_S,
+    CalibrationOptions,
+    calibrate,
+    dot_reproduction,
+    load_dot_frames,
+    nominal_camera,
+)
 from courtloc.sim.labels import lag_corrected, read_pose_csv
 from courtloc.sim.render import RenderOptions
 from courtloc.sim.synth import SynthConfig, synth
+from courtloc.world.camera import load_camera
+from courtloc.world.court import load_court
+
+from courtloc.cli import main
 
 
 @pytest.fixture(scope="module")

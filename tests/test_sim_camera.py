@@ -5,9 +5,8 @@ import math
 
 import numpy as np
 import pytest
-from pydantic import ValidationError
-
 from courtloc.world.camera import CameraModel, court_to_robot, load_camera, robot_to_court
+from pydantic import ValidationError
 
 
 def _camera(**mount) -> CameraModel:

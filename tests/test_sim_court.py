@@ -5,7 +5,6 @@ import json
 
 import numpy as np
 import pytest
-
 from courtloc.world.court import available_courts, load_court
 
 

@@ -7,11 +7,11 @@ import math
 import cv2
 import numpy as np
 import pytest
-
-from courtloc.cli import main
-from courtloc.world.court import load_court
 from courtloc.sim.labels import read_pose_csv
 from courtloc.sim.synth import SynthConfig, image_name, synth
+from courtloc.world.court import load_court
+
+from courtloc.cli import main
 
 
 def _rows(path):
@@ -43,8 +43,8 @@ def test_synth_writes_seed_format_and_resumes(tmp_path):
 
 def test_synth_labels_match_the_rendered_frame(tmp_path):
     """The CSV pose, through yaw = 2*asin(z), re-renders the stored raw frame."""
-    from courtloc.world.camera import load_camera
     from courtloc.sim.render import Renderer, RenderOptions
+    from courtloc.world.camera import load_camera
 
     out = tmp_path / "raw"
     synth(SynthConfig(court="seed-gazebo", n=2, out=out, kind="raw", render=RenderOptions(), jpeg_quality=100))

@@ -10,8 +10,9 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from courtloc.cli import main  # noqa: E402
 from courtloc.training.toy_data import write_toy_dataset  # noqa: E402
+
+from courtloc.cli import main  # noqa: E402
 
 
 def _run(argv: list[str]) -> int:

@@ -10,16 +10,19 @@ not mean, because the input is thin 0/1 dots and a mean would fade them.
 """
 from __future__ import annotations
 
+import json
 import logging
+import time
 from pathlib import Path
 
 import numpy as np
 import onnx
 import torch
-from torch import nn
-
+from courtloc.lab.datasets import Dataset
+from courtloc.lab.metrics import compute_metrics
 from courtloc.localizer.manifest import InputSpec, TensorSpec, attach_manifest
 from courtloc.training import paper_onnx
+from torch import nn
 
 log = logging.getLogger(__name__)
 ARCHES = ("mobilenet_v2", "efficientnet_b0")
@@ -36,7 +39,7 @@ def _one_channel_stem(conv: nn.Conv2d) -> nn.Conv2d:
 
 def build_baseline(arch: str, downscale: int = 1) -> nn.Module:
     try:
-        import torchvision
+        import torchvision  # torchvision: the vision extra
     except ImportError as exc:
         raise BaselineUnavailable("the CNN baselines need torchvision (pip install '.[vision]')") from exc
     if arch == "mobilenet_v2":
@@ -93,15 +96,10 @@ def train_baseline(cfg, arch: str) -> dict:  # noqa: ANN001 - trainer.TrainConfi
     cfg.frame_step / val_frame_step / downscale are the budget options (see TrainConfig); the per-epoch
     and summary metrics are on the strided frames, the full held-out numbers come from `courtloc eval`.
     """
-    import json
-    import time
 
-    from tqdm import tqdm
-
-    from courtloc.lab.datasets import Dataset
-    from courtloc.lab.metrics import compute_metrics
-    from courtloc.training.export import paper_manifest
-    from courtloc.training.trainer import HISTORY, SparseFrames, _split, plot_history
+    from courtloc.training.export import paper_manifest  # needs torch: the train extra
+    from courtloc.training.trainer import HISTORY, SparseFrames, _split, plot_history  # needs torch: the train extra
+    from tqdm import tqdm  # progress bars: tqdm comes with the train extra
 
     build_baseline(arch)  # fails fast, before loading data, when torchvision is absent
     cfg.out.mkdir(parents=True, exist_ok=True)

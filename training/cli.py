@@ -51,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _train(args: argparse.Namespace) -> int:
-    from courtloc.training.trainer import TrainConfig, train
+    from courtloc.training.trainer import TrainConfig, train  # needs torch: the train extra
 
     cfg = TrainConfig(data=args.data, csv=args.csv, kind=args.kind, out=args.out,
                       train_recordings=args.train_recordings, val_recordings=args.val_recordings,
@@ -62,7 +62,7 @@ def _train(args: argparse.Namespace) -> int:
         print("error: --downscale is for the CNN baselines only")
         return 2
     if args.arch != "paper":
-        from courtloc.training.baselines import BaselineUnavailable, train_baseline
+        from courtloc.training.baselines import BaselineUnavailable, train_baseline  # needs torch: the train extra
 
         try:
             summary = train_baseline(cfg, args.arch)
@@ -76,7 +76,7 @@ def _train(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from courtloc.training.export import export_paper
+    from courtloc.training.export import export_paper  # needs torch: the train extra
 
     written = export_paper(args.weights, args.out, args.graphs, args.name, args.version, args.court, args.camera)
     for kind, path in written.items():
@@ -85,7 +85,7 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _explain(args: argparse.Namespace) -> int:
-    from courtloc.training.explain import explain_images
+    from courtloc.training.explain import explain_images  # needs torch: the train extra
 
     for path in explain_images(args.model, args.images, args.out, args.steps):
         print(path)

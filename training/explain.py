@@ -15,7 +15,6 @@ from typing import Sequence
 import cv2
 import numpy as np
 import torch
-
 from courtloc.lab.datasets import threshold_dots
 from courtloc.localizer.paper_input import dense_input
 from courtloc.training.paper_model import DensePaperNet
@@ -58,7 +57,7 @@ def saliency_png(dots: np.ndarray, attributions: np.ndarray, crop_top: int, pred
 
 
 def explain_images(weights_file: Path, images: Sequence[Path], out_dir: Path, steps: int = 32) -> list[Path]:
-    from courtloc.training.export import load_weights
+    from courtloc.training.export import load_weights  # needs torch: the train extra
 
     state = load_weights(weights_file)
     crop_top = int(state["crop_top"])

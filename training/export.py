@@ -8,9 +8,15 @@ from typing import Iterable
 import numpy as np
 import onnx
 import torch
-
-from courtloc.localizer.manifest import (InputSpec, Manifest, OutputSpec, TensorSpec, TrainingData,
-                                         attach_manifest, runtime_preprocessing)
+from courtloc.localizer.manifest import (
+    InputSpec,
+    Manifest,
+    OutputSpec,
+    TensorSpec,
+    TrainingData,
+    attach_manifest,
+    runtime_preprocessing,
+)
 from courtloc.training import paper_onnx
 
 log = logging.getLogger(__name__)
@@ -24,7 +30,7 @@ def load_weights(weights_file: Path) -> dict:
         return state
     if "model" not in state:
         raise ValueError(f"{weights_file} is neither OUT/model.pt nor a training checkpoint OUT/last.pt")
-    from courtloc.training.paper_model import SparsePaperNet
+    from courtloc.training.paper_model import SparsePaperNet  # needs torch: the train extra
 
     table = state["model"]["first.weight"]
     config = state.get("config", {})
@@ -34,7 +40,7 @@ def load_weights(weights_file: Path) -> dict:
     model.n_pixels = table.shape[0]
     model.first = torch.nn.EmbeddingBag(table.shape[0], table.shape[1], mode="sum", sparse=True, _weight=table)
     model.first_bias = torch.nn.Parameter(state["model"]["first_bias"])
-    from courtloc.training.paper_model import _tail
+    from courtloc.training.paper_model import _tail  # needs torch: the train extra
 
     model.tail = _tail()
     model.tail.load_state_dict({k[len("tail."):]: v for k, v in state["model"].items() if k.startswith("tail.")})

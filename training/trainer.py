@@ -17,13 +17,12 @@ from typing import Literal, Optional
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
-
 from courtloc.lab.datasets import Dataset, split_by_recording
 from courtloc.lab.metrics import compute_metrics
 from courtloc.localizer.paper_input import CROP_TOP, sparse_input
 from courtloc.training.lazy_adam import LazyAdamRows, RowBatch
 from courtloc.training.paper_model import SparsePaperNet
+from pydantic import BaseModel, ConfigDict, Field
 
 log = logging.getLogger(__name__)
 LAST_CHECKPOINT = "last.pt"
@@ -60,7 +59,7 @@ class SparseFrames:
     """The non-zero pixels of each frame's crop, concatenated, with per-frame offsets."""
 
     def __init__(self, dataset: Dataset, indices: np.ndarray, crop_top: int, progress: bool = False) -> None:
-        from tqdm import tqdm
+        from tqdm import tqdm  # progress bars: tqdm comes with the train extra
 
         parts_i, parts_v, lengths = [], [], []
         shape = None
@@ -110,10 +109,10 @@ def predict(model: SparsePaperNet, frames: SparseFrames, batch_size: int = 64) -
 def plot_history(history: list[dict], path: Path) -> bool:
     """Loss curve PNG; False (and nothing written) when matplotlib is not installed."""
     try:
-        import matplotlib
+        import matplotlib  # plots: matplotlib comes with the train extra
 
         matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        import matplotlib.pyplot as plt  # plots: matplotlib comes with the train extra
     except ImportError:
         log.warning("matplotlib not installed: no loss curve")
         return False
@@ -173,7 +172,7 @@ def train(cfg: TrainConfig) -> dict:
         start_epoch = state["epoch"] + 1
         log.info("resumed from %s after epoch %d", last, state["epoch"])
 
-    from tqdm import tqdm
+    from tqdm import tqdm  # progress bars: tqdm comes with the train extra
 
     loss_fn = torch.nn.MSELoss()
     targets = torch.from_numpy(train_frames.targets)

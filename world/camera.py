@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -211,14 +212,11 @@ def robot_to_court(points_xy: np.ndarray, pose: Pose) -> np.ndarray:
 
 
 def available_cameras() -> list[str]:
-    from importlib import resources
-
     return sorted(p.stem for p in Path(str(resources.files("courtloc.world") / "cameras")).glob("*.json"))
 
 
 def load_camera(name_or_path: str | Path) -> CameraModel:
     """A camera by packaged name (world/cameras/NAME.json, see available_cameras()) or by JSON path."""
-    from importlib import resources
 
     path = Path(name_or_path)
     if not (path.suffix == ".json" and path.is_file()):

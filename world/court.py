@@ -12,6 +12,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
+import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, model_validator
 
@@ -303,8 +304,6 @@ def _lookup(mask: np.ndarray, texel_to_court: np.ndarray, xy: np.ndarray) -> np.
 
 
 def _paint(court: Court, resolution_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    import cv2
-
     hx, hy = court.floor_half_extent_m
     width = int(round(2 * hx / resolution_m))
     height = int(round(2 * hy / resolution_m))

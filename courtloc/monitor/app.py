@@ -11,6 +11,7 @@ from courtloc.monitor.server import Broadcast, MonitorServer
 from courtloc.monitor.state import Snapshotter, court_payload
 from courtloc.monitor.thumbnail import Thumbnailer
 from courtloc.monitor.watcher import MonitorWatcher
+from courtloc.world.court import load_court
 
 log = logging.getLogger("courtloc.monitor")
 
@@ -18,7 +19,6 @@ log = logging.getLogger("courtloc.monitor")
 class Monitor:
     def __init__(self, config: DeploymentConfig, court_name: str, host: str, port: int, rate_hz: float = 15.0,
                  thumb_width: int = 320, thumb_rate_hz: float = 5.0) -> None:
-        from courtloc.world.court import load_court
 
         self.config = config
         self.rate_hz = rate_hz

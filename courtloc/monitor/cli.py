@@ -2,12 +2,12 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 
-from courtloc.recording.busargs import add_client_arguments, client_deployment
+from courtloc.common.config_loader import ConfigError
 from courtloc.common.signals import stop_on_signals
+from courtloc.monitor.app import Monitor
+from courtloc.recording.busargs import add_client_arguments, client_deployment
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,9 +21,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from courtloc.common.config_loader import ConfigError
-    from courtloc.monitor.app import Monitor
-
     try:
         config = client_deployment(args)
     except (ConfigError, ValueError) as exc:
@@ -33,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"--rate must be within 1..60, got {args.rate}", file=sys.stderr)
         return 2
     try:
-        monitor = Monitor(config, args.court or config.camera.sim.court, args.host, args.port, args.rate)
+        monitor = Monitor(config, args.court or config.camera.sim.get("court", config.court), args.host, args.port, args.rate)
     except OSError as exc:
         print(f"monitor: cannot serve on {args.host}:{args.port}: {exc.strerror}", file=sys.stderr)
         return 1

@@ -10,6 +10,10 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from courtloc.common.security import with_identity
+from courtloc.common.services_table import check_robot_id
+from courtloc.deployment import load_deployment
+
 if TYPE_CHECKING:  # the CLI is built for every command: importing the deployment costs ~0.5 s
     from courtloc.deployment import DeploymentConfig
 
@@ -23,9 +27,6 @@ def add_client_arguments(parser: argparse.ArgumentParser, robot_help: str = "rob
 
 def client_deployment(args: argparse.Namespace) -> "DeploymentConfig":
     """The deployment with the command line's overrides; raises ConfigError/ValueError with the field."""
-    from courtloc.common.security import with_identity
-    from courtloc.common.services_table import check_robot_id
-    from courtloc.deployment import load_deployment
 
     config = load_deployment(args.config)
     update: dict[str, object] = {}

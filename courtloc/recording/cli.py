@@ -3,13 +3,19 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
-import threading
 from pathlib import Path
 
-from courtloc.recording.busargs import add_client_arguments, client_deployment
+from mcap.exceptions import McapError
+
+from courtloc.common.config_loader import ConfigError
+from courtloc.common.services_table import TOPICS
 from courtloc.common.signals import stop_on_signals
+from courtloc.recording.busargs import add_client_arguments, client_deployment
+from courtloc.recording.capture import Capture, CaptureOptions
+from courtloc.recording.mcapfile import Limits, McapSeries, dumps_summary, series_files
+from courtloc.recording.recorder import Recorder, recording_metadata, resolve_topics
+from courtloc.recording.replay import Replayer, ReplayOptions
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -63,7 +69,6 @@ def add_capture_parser(dataset_sub: argparse._SubParsersAction) -> None:
 
 
 def _deployment(args: argparse.Namespace):  # noqa: ANN202
-    from courtloc.common.config_loader import ConfigError
 
     try:
         return client_deployment(args)
@@ -73,9 +78,6 @@ def _deployment(args: argparse.Namespace):  # noqa: ANN202
 
 
 def run_record(args: argparse.Namespace) -> int:
-    from courtloc.recording.mcapfile import Limits, McapSeries
-    from courtloc.recording.recorder import Recorder, recording_metadata, resolve_topics
-
     config = _deployment(args)
     if config is None:
         return 2
@@ -112,12 +114,6 @@ def run_record(args: argparse.Namespace) -> int:
 
 
 def run_replay(args: argparse.Namespace) -> int:
-    from courtloc.common.services_table import TOPICS
-    from courtloc.recording.mcapfile import dumps_summary, series_files
-    from courtloc.recording.replay import Replayer, ReplayOptions
-
-    from mcap.exceptions import McapError
-
     try:
         files = series_files(args.input)
         summary = dumps_summary(files)  # reads every file's summary: a broken file is named before replay
@@ -151,8 +147,6 @@ def run_replay(args: argparse.Namespace) -> int:
 
 
 def run_capture(args: argparse.Namespace) -> int:
-    from courtloc.recording.capture import Capture, CaptureOptions
-
     config = _deployment(args)
     if config is None:
         return 2

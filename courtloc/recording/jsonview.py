@@ -22,6 +22,7 @@ from typing import Any
 from pydantic import BaseModel
 
 from courtloc.common.messages import Frame
+from courtloc.common.services_table import TOPICS
 
 _BASE64 = {"type": "string", "contentEncoding": "base64"}
 _TIME = {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0},
@@ -51,8 +52,6 @@ def schema_name(message_type: type[BaseModel]) -> str:
 
 
 def _message_types() -> dict[str, type[BaseModel]]:
-    from courtloc.common.services_table import TOPICS
-
     return {schema_name(t.message): t.message for t in TOPICS.values()}
 
 

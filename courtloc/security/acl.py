@@ -15,7 +15,13 @@ from typing import Any
 
 from courtloc.common.security import MONITOR_IDENTITY, PIT_IDENTITY, principal
 from courtloc.common.services_table import (
-    CONTROLS, HEALTH_TOPICS, SERVICES, TOPICS, all_liveliness_key, check_robot_id, liveliness_key,
+    CONTROLS,
+    HEALTH_TOPICS,
+    SERVICES,
+    TOPICS,
+    all_liveliness_key,
+    check_robot_id,
+    liveliness_key,
     robot_wildcard_key,
 )
 

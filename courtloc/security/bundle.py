@@ -15,9 +15,10 @@ from pathlib import Path
 
 from courtloc.common.security import PIT_IDENTITY, BundleLayout, principal
 from courtloc.common.services_table import SERVICES, check_robot_id
+from courtloc.common.signing import generate_signing_key
 from courtloc.security import pki
 from courtloc.security.acl import identities
-from courtloc.security.signing import generate_signing_key, write_signing_keys
+from courtloc.security.pki import write_signing_keys
 
 log = logging.getLogger(__name__)
 

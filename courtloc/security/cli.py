@@ -6,6 +6,10 @@ import json
 import sys
 from pathlib import Path
 
+from courtloc.common.signing import ModelSignatureError, sign_model, signature_path, verify_model
+from courtloc.security.acl import access_control
+from courtloc.security.bundle import init_bundles
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     secure = sub.add_parser("secure", help="credentials, access rules and model signatures")
@@ -39,8 +43,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_init(args: argparse.Namespace) -> int:
-    from courtloc.security.bundle import init_bundles
-
     hostnames = args.hostname or [f"{args.robot}.local"]
     try:
         bundles = init_bundles(args.out, args.robot, hostnames, args.team, args.pit_stages)
@@ -56,22 +58,16 @@ def run_init(args: argparse.Namespace) -> int:
 
 
 def run_acl(args: argparse.Namespace) -> int:
-    from courtloc.security.acl import access_control
-
     print(json.dumps(access_control(args.robot), indent=2))
     return 0
 
 
 def run_sign(args: argparse.Namespace) -> int:
-    from courtloc.security.signing import sign_model
-
     print(sign_model(args.model, args.key))
     return 0
 
 
 def run_verify(args: argparse.Namespace) -> int:
-    from courtloc.security.signing import ModelSignatureError, signature_path, verify_model
-
     try:
         digest = verify_model(args.model, args.signature or signature_path(args.model), args.key)
     except (ModelSignatureError, OSError) as exc:

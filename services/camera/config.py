@@ -2,11 +2,9 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
-
-from courtloc.sim.source import SimSourceConfig
 
 
 class _Section(BaseModel):
@@ -43,10 +41,21 @@ class CameraConfig(_Section):
     device: DeviceSourceConfig = Field(default_factory=DeviceSourceConfig)
     file: FileSourceConfig | None = None
     folder: FolderSourceConfig | None = None
-    sim: SimSourceConfig = Field(default_factory=SimSourceConfig)
+    # The simulated camera is the digital twin (courtloc.sim), which a robot with a real camera never loads:
+    # its table stays raw here and the twin validates it when source = "sim" (see sim/source.py for fields).
+    sim: dict[str, Any] = Field(default_factory=dict)
 
     @model_validator(mode="after")
     def _source_section_present(self) -> "CameraConfig":
         if self.source in ("file", "folder") and getattr(self, self.source) is None:
             raise ValueError(f"source = {self.source!r} needs a [camera.{self.source}] section")
+        if self.source == "sim":
+            sim_source_config(self)  # a bad [camera.sim] table fails here, at start, naming its field
         return self
+
+
+def sim_source_config(config: CameraConfig) -> "SimSourceConfig":  # noqa: F821 - the twin's type
+    """The [camera.sim] table as the twin's own config, paced at the camera's rate."""
+    from courtloc.sim.source import SimSourceConfig  # the twin: loaded only when the camera is simulated
+
+    return SimSourceConfig.model_validate({**config.sim, "fps": config.fps})

@@ -5,9 +5,8 @@ import time
 
 import cv2
 import numpy as np
-
-from courtloc.common.messages import Frame, GroundTruth, Header
 from courtloc.common.bus import ZenohConfig
+from courtloc.common.messages import Frame, GroundTruth, Header
 from courtloc.common.runtime import Service
 from courtloc.services.camera.config import CameraConfig
 from courtloc.services.camera.sources import Capture, FrameSource, SourceError, make_source

@@ -13,8 +13,13 @@ from typing import Protocol
 
 import cv2
 import numpy as np
-
-from courtloc.services.camera.config import CameraConfig, DeviceSourceConfig, FileSourceConfig, FolderSourceConfig
+from courtloc.services.camera.config import (
+    CameraConfig,
+    DeviceSourceConfig,
+    FileSourceConfig,
+    FolderSourceConfig,
+    sim_source_config,
+)
 
 
 class SourceError(RuntimeError):
@@ -144,9 +149,9 @@ class SimFrameSource:
     """Adapter over the digital twin's source (its own trajectory and renderer)."""
 
     def __init__(self, config: CameraConfig) -> None:
-        from courtloc.sim.source import SimSource
+        from courtloc.sim.source import SimSource  # the twin: loaded only when the camera is simulated
 
-        self._sim = SimSource(config.sim.model_copy(update={"fps": config.fps}))
+        self._sim = SimSource(sim_source_config(config))
 
     def open(self) -> None:
         self._sim.open()

@@ -5,6 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from courtloc.scan.config import PreprocessConfig
+from courtloc.scan.preprocessor import Preprocessor
+from courtloc.world.camera import load_camera
+from courtloc.world.court import load_court
 
 # Poses spread over the court, facing lines (x, y, yaw); every court we ship contains them.
 GOLDEN_POSES: tuple[tuple[float, float, float], ...] = (
@@ -34,10 +38,7 @@ class GoldenSets:
 
 
 def _render_golden(court_name: str, camera_name: str) -> list[GoldenFrame]:
-    from courtloc.scan.config import PreprocessConfig
-    from courtloc.scan.preprocessor import Preprocessor
-    from courtloc.world.camera import load_camera
-    from courtloc.world.court import load_court
+    # The twin renders golden frames on the robot until packages ship their own golden inputs (issue 16).
     from courtloc.sim.render import Renderer
 
     camera = load_camera(camera_name)

@@ -10,10 +10,20 @@ import re
 from typing import Protocol
 
 from courtloc.common.control import (
-    Activate, ListModels, ModelInfo, ModelReply, ModelRequest, PushBegin, PushChunk, PushCommit, Rollback, Shadow,
+    Activate,
+    ListModels,
+    ModelInfo,
+    ModelReply,
+    ModelRequest,
+    PushBegin,
+    PushChunk,
+    PushCommit,
+    Rollback,
+    Shadow,
 )
+from courtloc.localizer.manifest import ManifestError, read_manifest
 from courtloc.services.infer.engine import LoadedModel, ModelRefused
-from courtloc.services.infer.store import MODEL_NAME_PATTERN, ModelRef, ModelStore, StoreError, StoredModel
+from courtloc.services.infer.store import MODEL_NAME_PATTERN, ModelRef, ModelStore, StoredModel, StoreError
 from courtloc.services.infer.uploads import UploadError, Uploads
 
 log = logging.getLogger(__name__)
@@ -69,7 +79,6 @@ class ModelControl:
 
     def _commit(self, body: PushCommit) -> ModelReply:
         folder = self.uploads.complete(body.upload_id)
-        from courtloc.localizer.manifest import ManifestError, read_manifest
 
         try:
             name = read_manifest(folder / "model.onnx").name
@@ -116,8 +125,6 @@ class ModelControl:
         return ModelReply(ok=True, name=stored.ref.name, version=stored.ref.version, reason="shadow running")
 
     def _list(self) -> ModelReply:
-        from courtloc.localizer.manifest import read_manifest
-
         active = self.host.active_ref()
         shadow = self.host.shadow_reply()
         infos = []

@@ -3,18 +3,16 @@ from __future__ import annotations
 
 import math
 import time
-from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel
-
+from courtloc.common.bus import ZenohConfig
 from courtloc.common.control import ModelReply
 from courtloc.common.inbox import Delivery
 from courtloc.common.messages import Edges, Pose
 from courtloc.common.payloads import edges_hits
-from courtloc.common.bus import ZenohConfig
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Control, Topic
+from courtloc.localizer.tracking import Tracker
 from courtloc.models import bundled_package
 from courtloc.services.infer.config import InferConfig
 from courtloc.services.infer.engine import LoadedModel, ModelRefused, is_on_court, load_model
@@ -22,8 +20,8 @@ from courtloc.services.infer.golden import GoldenSets
 from courtloc.services.infer.model_control import ModelControl
 from courtloc.services.infer.shadow import ShadowRunner
 from courtloc.services.infer.store import ModelRef, ModelStore, StoredModel
-from courtloc.localizer.tracking import Tracker
 from courtloc.services.infer.uploads import Uploads
+from pydantic import BaseModel
 
 DEFAULT_MODEL_NAME = "default"
 

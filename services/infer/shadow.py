@@ -9,7 +9,6 @@ from collections import deque
 from typing import Callable
 
 import numpy as np
-
 from courtloc.common.control import ShadowStats
 from courtloc.common.inbox import LatestInbox
 from courtloc.common.messages import Edges, Pose

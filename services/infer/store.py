@@ -18,9 +18,8 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, Field
-
 from courtloc.localizer.manifest import MODEL_FILE
+from pydantic import BaseModel, ConfigDict, Field
 
 log = logging.getLogger(__name__)
 

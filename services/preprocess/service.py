@@ -4,14 +4,13 @@ from __future__ import annotations
 import time
 
 import numpy as np
-
+from courtloc.common.bus import ZenohConfig
 from courtloc.common.inbox import Delivery
 from courtloc.common.messages import Edges, Frame
-from courtloc.common.bus import ZenohConfig
+from courtloc.common.payloads import FrameError, decode_frame, hits_to_bytes
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Topic
 from courtloc.scan.config import PreprocessConfig
-from courtloc.common.payloads import FrameError, decode_frame, hits_to_bytes
 from courtloc.scan.preprocessor import Preprocessor
 
 

@@ -4,10 +4,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal, Optional, Union
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
-
+from courtloc.common.config_loader import load_model, resolve_relative_paths
 from courtloc.shot.ballistics import ShotModel
 from courtloc.shot.geometry import ShooterMount, ring_for
+from courtloc.shot.rpm import PriorSource, RpmSource, TableWatcher
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
 class _Strict(BaseModel):
@@ -125,7 +126,15 @@ class ShooterConfig(_Strict):
 
 def load_shooter_config(path: Optional[Path]) -> ShooterConfig:
     """The config file at `path` (TOML or JSON), or the defaults; raises ConfigError naming the field."""
-    from courtloc.common.config_loader import load_model, resolve_relative_paths
 
     config = load_model(path, ShooterConfig)
     return config if path is None else resolve_relative_paths(config, Path(path).resolve().parent)
+
+
+def make_rpm_source(config: ShooterConfig, ring_height_m: float) -> RpmSource:
+    """The configured table (watched for changes) or, without one, the physics prior."""
+    if config.rpm.table is not None:
+        return TableWatcher(config.rpm.table, config.rpm.reload_interval_s)
+    physics = config.rpm.physics
+    return PriorSource(physics.model(config.mount.release_height_m, ring_height_m),
+                       physics.min_distance_m, physics.max_distance_m)

@@ -15,6 +15,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Iterator, Optional
 
+import serial
 from courtloc.services.shooter_bridge.config import LinkConfig
 from courtloc.services.shooter_bridge.protocol import Command, HoldReason, McuFrame, StreamDecoder, encode
 
@@ -118,8 +119,6 @@ class McuLink:
             self._close()
 
     def _open(self) -> bool:
-        import serial
-
         try:
             # exclusive: a second bridge on the same MCU must fail to open, not interleave frames
             self._port = serial.Serial(self.config.port, self.config.baud, timeout=0,
@@ -153,8 +152,6 @@ class McuLink:
         self._notify()
 
     def _write(self, command: Command, rpm: int, flags: int, reason: int) -> None:
-        import serial
-
         if self._port is None:
             return
         data = encode(McuFrame(seq=self._seq, command=command, rpm=rpm, flags=flags, reason=reason))
@@ -173,8 +170,6 @@ class McuLink:
         self._notify()
 
     def _read_status(self) -> None:
-        import serial
-
         if self._port is None:
             return
         try:

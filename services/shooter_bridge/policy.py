@@ -14,9 +14,10 @@ from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
 
 from courtloc.services.shooter_bridge.config import AreaConfig, PolicyConfig, ShooterConfig
-from courtloc.shot.geometry import Aim, Pose2D, ShooterMount, UnreachableAim, aim
 from courtloc.services.shooter_bridge.protocol import Command, Flag, HoldReason
+from courtloc.shot.geometry import Aim, Pose2D, ShooterMount, UnreachableAim, aim
 from courtloc.shot.rpm import RpmLookup
+from courtloc.world.court import load_court
 
 Area = Callable[[float, float], bool]
 
@@ -40,7 +41,6 @@ def build_area(config: AreaConfig, court_name: str) -> Area:
         return polygon_area(config.polygon)
     if config.kind == "rectangle":
         return lambda x, y: config.x_min <= x <= config.x_max and config.y_min <= y <= config.y_max
-    from courtloc.world.court import load_court
 
     court = load_court(court_name)
     return lambda x, y: bool(court.contains(x, y))

@@ -13,17 +13,16 @@ import time
 from collections import Counter
 from typing import Optional
 
+from courtloc.common.bus import ZenohConfig
 from courtloc.common.inbox import Delivery
 from courtloc.common.messages import Header, Pose, ShotSolution
-from courtloc.common.bus import ZenohConfig
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Topic
-from courtloc.services.shooter_bridge.config import ShooterConfig
-from courtloc.shot.geometry import Pose2D
+from courtloc.services.shooter_bridge.config import ShooterConfig, make_rpm_source
 from courtloc.services.shooter_bridge.link import McuLink
 from courtloc.services.shooter_bridge.policy import ShotDecision, build_policy
 from courtloc.services.shooter_bridge.protocol import Command
-from courtloc.shot.rpm import make_rpm_source
+from courtloc.shot.geometry import Pose2D
 
 
 class ShooterBridgeService(Service):

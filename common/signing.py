@@ -15,8 +15,6 @@ from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from courtloc.security.pki import write_secret
-
 SIGNATURE_SUFFIX = ".sig"
 _DOMAIN = b"courtloc-model-v1\x00"  # a signature made for something else never verifies a model
 
@@ -35,14 +33,6 @@ class SignatureFile(BaseModel):
 
 def generate_signing_key() -> Ed25519PrivateKey:
     return Ed25519PrivateKey.generate()
-
-
-def write_signing_keys(key: Ed25519PrivateKey, private_path: Path, public_path: Path) -> None:
-    write_secret(private_path, key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-                                                 serialization.NoEncryption()))
-    public_path.parent.mkdir(parents=True, exist_ok=True)
-    public_path.write_bytes(key.public_key().public_bytes(serialization.Encoding.PEM,
-                                                          serialization.PublicFormat.SubjectPublicKeyInfo))
 
 
 def load_private_key(path: Path) -> Ed25519PrivateKey:

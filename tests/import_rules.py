@@ -1,0 +1,189 @@
+"""The layering rules of the source tree, checked from the files themselves (ast, nothing imported).
+
+Layers, lowest first (a module imports only its own layer or lower ones):
+  0  common (contract, codecs, bus, runtime, services table), world (court, camera, angles), models (data)
+  1  libraries: scan (the radial scan), localizer (the runtime localizer), shot (ballistics, RPM)
+  2  stages: services/<stage> (config, service, entry point); a stage never imports another stage
+  3  tools (courtloc/: CLI, launcher, pit tools, benches) and the lab (lab/, sim/ the twin, training/)
+No import circles among module-level imports. A function-local import is allowed only for an optional
+heavy dependency (torch and what imports it, matplotlib, tqdm, foxglove, rosbags, websockets) or the
+twin from the camera stage (the simulated camera), and it carries a `#` comment saying why.
+"""
+from __future__ import annotations
+
+import ast
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = "courtloc"
+LAYERS: dict[str, int] = {
+    "common": 0, "world": 0, "models": 0,
+    "scan": 1, "localizer": 1, "shot": 1,
+    "services": 2,
+    "lab": 3, "sim": 3, "training": 3, "": 3,  # "": the tools directly under courtloc/
+}
+ROBOT_SIDE = ("common", "world", "models", "scan", "localizer", "shot", "services")
+OPTIONAL_HEAVY = {"torch", "torchvision", "matplotlib", "tqdm", "foxglove", "rosbags", "websockets"}
+# (importer prefix, imported prefix): a lazy import the rules allow, with why.
+ALLOWED_LAZY_INTERNAL = {
+    ("courtloc.services.camera", "courtloc.sim"): "the simulated camera is the twin, loaded only when chosen",
+    ("courtloc.services.infer.golden", "courtloc.sim.render"): "until packages ship golden inputs (issue 16)",
+}
+
+
+@dataclass(frozen=True)
+class Import:
+    importer: str
+    imported: str
+    path: Path
+    line: int
+    local: bool  # inside a function
+    type_only: bool  # under `if TYPE_CHECKING:`
+    commented: bool  # a `#` comment on its line or the line above
+
+
+def package_of(module: str) -> str:
+    """'courtloc.services.infer.engine' -> 'services'; a tool under courtloc/ -> ''."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in LAYERS else ""
+
+
+def stage_of(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[2] if len(parts) > 3 and parts[1] == "services" else None
+
+
+def module_files(repo: Path, package_dirs: dict[str, str]) -> dict[str, Path]:
+    """Import name -> file, from the package-dir mapping (import prefix -> folder)."""
+    found: dict[str, Path] = {}
+    for prefix, folder in package_dirs.items():
+        base = repo / folder
+        for path in base.rglob("*.py"):
+            parts = [p for p in path.relative_to(base).with_suffix("").parts if p != "__init__"]
+            found[".".join([prefix, *parts])] = path
+    return found
+
+
+def imports_of(module: str, path: Path) -> list[Import]:
+    source = path.read_text()
+    lines = source.splitlines()
+    tree = ast.parse(source)
+    parents: dict[ast.AST, ast.AST] = {}
+    for node in ast.walk(tree):
+        for child in ast.iter_child_nodes(node):
+            parents[child] = node
+
+    def context(node: ast.AST) -> tuple[bool, bool]:
+        local = type_only = False
+        parent = parents.get(node)
+        while parent is not None:
+            if isinstance(parent, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                local = True
+            if isinstance(parent, ast.If) and "TYPE_CHECKING" in ast.unparse(parent.test):
+                type_only = True
+            parent = parents.get(parent)
+        return local, type_only
+
+    is_package = path.name == "__init__.py"
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = module.split(".")[: len(module.split(".")) - node.level + (1 if is_package else 0)]
+                stem = ".".join(base + ([node.module] if node.module else []))
+            else:
+                stem = node.module or ""
+            # `from pkg import sub` imports the submodule when there is one: both are recorded
+            targets = [stem, *(f"{stem}.{alias.name}" for alias in node.names if stem.startswith(ROOT + "."))]
+        else:
+            continue
+        local, type_only = context(node)
+        here = lines[node.lineno - 1]
+        above = lines[node.lineno - 2] if node.lineno > 1 else ""
+        commented = "#" in here or above.strip().startswith("#")
+        for target in targets:
+            found.append(Import(module, target, path, node.lineno, local, type_only, commented))
+    return found
+
+
+def violations(repo: Path, package_dirs: dict[str, str]) -> list[str]:
+    files = module_files(repo, package_dirs)
+    all_imports = [imp for name, path in files.items() for imp in imports_of(name, path)]
+    internal = [i for i in all_imports if i.imported in files]
+    torch_modules = {i.importer for i in all_imports
+                     if not i.local and not i.type_only and i.imported.split(".")[0] == "torch"}
+    problems: list[str] = []
+    for imp in internal:
+        where = f"{imp.path.relative_to(repo)}:{imp.line}"
+        if imp.importer == imp.imported:
+            continue
+        a, b = package_of(imp.importer), package_of(imp.imported)
+        allowed = next((why for (src, dst), why in ALLOWED_LAZY_INTERNAL.items()
+                        if imp.importer.startswith(src) and imp.imported.startswith(dst)), None)
+        if LAYERS[b] > LAYERS[a] and not (allowed and imp.local):
+            problems.append(f"{where}: {imp.importer} (layer {LAYERS[a]}) imports {imp.imported} (layer {LAYERS[b]})")
+        sa, sb = stage_of(imp.importer), stage_of(imp.imported)
+        if sa is not None and sb is not None and sa != sb:
+            problems.append(f"{where}: stage {sa} imports stage {sb} ({imp.imported})")
+        if a in ROBOT_SIDE and b in ("sim", "lab", "training") and not (allowed and imp.local):
+            problems.append(f"{where}: robot-side {imp.importer} imports {imp.imported}")
+        if imp.local and not (allowed or imp.imported in torch_modules):
+            problems.append(f"{where}: function-local import of {imp.imported} in {imp.importer}")
+        elif imp.local and not imp.commented:
+            problems.append(f"{where}: function-local import of {imp.imported} without a comment saying why")
+    for imp in all_imports:
+        top = imp.imported.split(".")[0]
+        if imp.local and top != ROOT:
+            where = f"{imp.path.relative_to(repo)}:{imp.line}"
+            if top not in OPTIONAL_HEAVY:
+                problems.append(f"{where}: function-local import of {imp.imported} in {imp.importer}")
+            elif not imp.commented:
+                problems.append(f"{where}: function-local import of {imp.imported} without a comment saying why")
+    problems += [f"import circle: {' -> '.join(cycle)}" for cycle in cycles(internal)]
+    return sorted(set(problems))
+
+
+def cycles(imports: list[Import]) -> list[list[str]]:
+    """Circles among module-level imports (what runs at import time), one per strongly connected set."""
+    graph: dict[str, set[str]] = {}
+    for imp in imports:
+        if not imp.local and not imp.type_only and imp.importer != imp.imported:
+            graph.setdefault(imp.importer, set()).add(imp.imported)
+            graph.setdefault(imp.imported, set())
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+    counter = [0]
+
+    def visit(node: str) -> None:  # Tarjan's strongly connected components
+        index[node] = low[node] = counter[0]
+        counter[0] += 1
+        stack.append(node)
+        on_stack.add(node)
+        for nxt in sorted(graph[node]):
+            if nxt not in index:
+                visit(nxt)
+                low[node] = min(low[node], low[nxt])
+            elif nxt in on_stack:
+                low[node] = min(low[node], index[nxt])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            # a package importing its own submodule (`from pkg import sub`) is not a circle
+            members = [m for m in component if not any(o != m and o.startswith(m + ".") for o in component)]
+            if len(members) > 1:
+                found.append(sorted(members))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return found
