@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from courtloc.common.services_table import RELAY_HOPS
-from courtloc.deployment import load_deployment
 from courtloc.launcher import run_up
+from courtloc.services.deployment import load_deployment
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

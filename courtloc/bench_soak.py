@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from courtloc.common.signals import stop_on_signals
-from courtloc.deployment import load_deployment
+from courtloc.services.deployment import load_deployment
 from courtloc.watch import BusWatcher
 
 

@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, TextIO
 
-from courtloc.deployment import DeploymentConfig
+from courtloc.services.deployment import DeploymentConfig
+from courtloc.stage_cli import stage_argv
 from courtloc.watch import BusWatcher
 
 log = logging.getLogger("courtloc.launcher")
@@ -90,7 +91,7 @@ class Supervisor:
             self.children.append(Child("router", [*python, "router", *listen, "--config", str(self.config_path)],
                                        backoff, ready_line="router listening"))
         for name in self.config.launcher.services:
-            self.children.append(Child(name, [*python, "run", name, "--config", str(self.config_path)], backoff))
+            self.children.append(Child(name, stage_argv(name, self.config_path), backoff))
 
     def start_all(self, ready_timeout_s: float = 15.0) -> None:
         """The router first: stages started after it is listening connect at once."""

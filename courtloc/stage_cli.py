@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -12,9 +13,10 @@ import zenoh
 from courtloc.common.bus import ZenohConfig, build_zenoh_config
 from courtloc.common.config_loader import ConfigError
 from courtloc.common.security import router_settings
+from courtloc.common.services_table import SERVICES
 from courtloc.common.signals import stop_on_signals
-from courtloc.deployment import build_stage, load_deployment
 from courtloc.security.acl import access_control
+from courtloc.services.deployment import load_deployment
 
 log = logging.getLogger("courtloc.stage")
 
@@ -32,14 +34,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     router.set_defaults(func=run_router)
 
 
+def stage_argv(name: str, config: Path | None, verbose: int = 0) -> list[str]:
+    """The command line of a stage process: its own entry point, which loads only that stage."""
+    return [sys.executable, "-m", f"courtloc.services.{name}", *(["-v"] * verbose),
+            *(["--config", str(config)] if config is not None else [])]
+
+
 def run_stage(args: argparse.Namespace) -> int:
-    try:
-        config = load_deployment(args.config)
-        stage = build_stage(args.service, config)
-    except (ConfigError, ValueError) as exc:
-        print(exc, file=sys.stderr)
+    if args.service not in SERVICES:
+        print(f"no stage {args.service!r}; available: {list(SERVICES)}", file=sys.stderr)
         return 2
-    return stage.run()
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    # This process becomes the stage's own (a stage process never loads the CLI, the lab or other stages).
+    os.execv(sys.executable, stage_argv(args.service, args.config, args.verbose))
 
 
 def run_router(args: argparse.Namespace) -> int:

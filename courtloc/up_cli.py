@@ -8,8 +8,8 @@ from pathlib import Path
 
 from courtloc.common.config_loader import ConfigError
 from courtloc.common.signals import stop_on_signals
-from courtloc.deployment import load_deployment
 from courtloc.launcher import run_up
+from courtloc.services.deployment import load_deployment
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -26,7 +26,7 @@ from courtloc.common.services_table import (
     all_liveliness_key,
     service_of_liveliness_key,
 )
-from courtloc.deployment import DeploymentConfig
+from courtloc.services.deployment import DeploymentConfig
 
 log = logging.getLogger("courtloc.watch")
 _MAX_TRUTHS = 256

@@ -51,7 +51,7 @@ class PaperOnnxModel:
         self.manifest = self.predictor.manifest
 
     def predict_dots(self, dots: np.ndarray) -> np.ndarray:
-        return self.predictor.predict_dots(dots)
+        return self.predictor.run(self.predictor.dots_feed(dots))
 
     def predict_frame(self, dataset: Dataset, i: int) -> tuple[float, float, Optional[float]]:
         x, y = self.predict_dots(dataset.dot_image(i))

@@ -49,12 +49,12 @@ def _worker(args: argparse.Namespace) -> int:
     name, path = args.model[0].split("=", 1)
     dataset, chosen = _frames(args)
     model = PaperOnnxModel(Path(path), threads=args.threads)
-    feeds = [model.feed(dataset.dot_image(int(i))) for i in chosen]
-    model.session.run(None, feeds[0])  # warm-up, not timed
+    feeds = [model.predictor.dots_feed(dataset.dot_image(int(i))) for i in chosen]
+    model.predictor.session.run(None, feeds[0])  # warm-up, not timed
     times, preds = [], []
     for feed in feeds:
         start = time.perf_counter()
-        out = model.session.run(None, feed)[0]
+        out = model.predictor.session.run(None, feed)[0]
         times.append(time.perf_counter() - start)
         preds.append(out.reshape(-1)[:2])
     metrics = compute_metrics(np.array(preds), dataset.xy[chosen]).as_dict()

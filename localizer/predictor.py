@@ -179,10 +179,10 @@ class PaperPredictor:
             raise ValueError(f"frame {width}x{height} does not match the model's {pre.frame_width}x{pre.frame_height}")
         h = _as_hits(hits)
         if self.manifest.input.kind == "dense_image":
-            dense = hits_to_dense_input(h, height, width, self.crop_top, pre.dot_radius)
-            xy = self._run_dense(dense)
+            feed = self._dense_feed(hits_to_dense_input(h, height, width, self.crop_top, pre.dot_radius))
         else:
-            xy = self._run_sparse(*hits_to_sparse_input(h, height, width, self.crop_top, pre.dot_radius))
+            feed = self._sparse_feed(*hits_to_sparse_input(h, height, width, self.crop_top, pre.dot_radius))
+        xy = self.run(feed)
         return Prediction(x=float(xy[0]), y=float(xy[1]), yaw=None, quality=1.0, valid=True, mode="network",
                           n_hits=len(h))
 
@@ -191,19 +191,22 @@ class PaperPredictor:
         """The network sees each frame alone: tracking is predicting, and there is no state."""
         return self.predict(hits, width, height), None
 
-    def predict_dots(self, dots: np.ndarray) -> np.ndarray:
-        """(x, y) of one full-frame 0/1 dot image (the seed datasets' form of the input)."""
+    def dots_feed(self, dots: np.ndarray) -> dict[str, np.ndarray]:
+        """The session inputs for one full-frame 0/1 dot image (the seed datasets' form of the input)."""
         if self.manifest.input.kind == "dense_image":
-            return self._run_dense(dense_input(dots, self.crop_top))
-        return self._run_sparse(*sparse_input(dots, self.crop_top))
+            return self._dense_feed(dense_input(dots, self.crop_top))
+        return self._sparse_feed(*sparse_input(dots, self.crop_top))
 
-    def _run_dense(self, dense: np.ndarray) -> np.ndarray:
-        # [1, H, W] for the MLP, [1, 1, H, W] for the CNN baselines
-        feed = {self.names[0]: dense.reshape([d if isinstance(d, int) else -1 for d in self.shape])}
+    def run(self, feed: dict[str, np.ndarray]) -> np.ndarray:
+        """(x, y) for one feed."""
         return self.session.run(None, feed)[0].reshape(-1)[:2]
 
-    def _run_sparse(self, indices: np.ndarray, values: np.ndarray) -> np.ndarray:
-        return self.session.run(None, {self.names[0]: indices, self.names[1]: values})[0].reshape(-1)[:2]
+    def _dense_feed(self, dense: np.ndarray) -> dict[str, np.ndarray]:
+        # [1, H, W] for the MLP, [1, 1, H, W] for the CNN baselines
+        return {self.names[0]: dense.reshape([d if isinstance(d, int) else -1 for d in self.shape])}
+
+    def _sparse_feed(self, indices: np.ndarray, values: np.ndarray) -> dict[str, np.ndarray]:
+        return {self.names[0]: indices, self.names[1]: values}
 
 
 def load_predictor(path: Path | str | ModelFile, providers: Sequence[str] | None = None, threads: int = 1,

@@ -4,8 +4,7 @@ from pathlib import Path
 
 import pytest
 from courtloc.common.config_loader import ConfigError
-
-from courtloc.deployment import DeploymentConfig, load_deployment
+from courtloc.services.deployment import DeploymentConfig, load_deployment
 
 
 def test_builtin_default_is_valid() -> None:

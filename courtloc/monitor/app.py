@@ -6,11 +6,11 @@ import logging
 import threading
 import time
 
-from courtloc.deployment import DeploymentConfig
 from courtloc.monitor.server import Broadcast, MonitorServer
 from courtloc.monitor.state import Snapshotter, court_payload
 from courtloc.monitor.thumbnail import Thumbnailer
 from courtloc.monitor.watcher import MonitorWatcher
+from courtloc.services.deployment import DeploymentConfig
 from courtloc.world.court import load_court
 
 log = logging.getLogger("courtloc.monitor")

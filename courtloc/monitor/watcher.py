@@ -18,7 +18,7 @@ import zenoh
 from courtloc.common import codec
 from courtloc.common.messages import GroundTruth, Pose
 from courtloc.common.services_table import TOPICS
-from courtloc.deployment import DeploymentConfig
+from courtloc.services.deployment import DeploymentConfig
 from courtloc.watch import BusWatcher, WatchState
 
 TRAIL_LENGTH = 600  # poses kept (20 s at 30 Hz)

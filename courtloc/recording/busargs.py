@@ -12,10 +12,10 @@ from typing import TYPE_CHECKING
 
 from courtloc.common.security import with_identity
 from courtloc.common.services_table import check_robot_id
-from courtloc.deployment import load_deployment
+from courtloc.services.deployment import load_deployment
 
 if TYPE_CHECKING:  # the CLI is built for every command: importing the deployment costs ~0.5 s
-    from courtloc.deployment import DeploymentConfig
+    from courtloc.services.deployment import DeploymentConfig
 
 
 def add_client_arguments(parser: argparse.ArgumentParser, robot_help: str = "robot id (default: the config's)") -> None:

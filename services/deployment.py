@@ -5,23 +5,22 @@ simulated camera, the bundled model.
 """
 from __future__ import annotations
 
+import argparse
+import logging
+import sys
 from pathlib import Path
-
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from typing import Sequence
 
 from courtloc.common.bus import ZenohConfig
-from courtloc.common.config_loader import load_model, resolve_relative_paths
+from courtloc.common.config_loader import ConfigError, load_model, resolve_relative_paths
 from courtloc.common.runtime import Service
 from courtloc.common.security import with_identity
 from courtloc.common.services_table import SERVICES, check_robot_id
 from courtloc.scan.config import PreprocessConfig
 from courtloc.services.camera.config import CameraConfig
-from courtloc.services.camera.service import CameraService
 from courtloc.services.infer.config import InferConfig
-from courtloc.services.infer.service import InferService
-from courtloc.services.preprocess.service import PreprocessService
 from courtloc.services.shooter_bridge.config import ShooterConfig
-from courtloc.services.shooter_bridge.service import ShooterBridgeService
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
@@ -85,18 +84,23 @@ def load_deployment(path: Path | None) -> DeploymentConfig:
     return config if path is None else resolve_relative_paths(config, Path(path).resolve().parent)
 
 
-STAGE_CLASSES: dict[str, type[Service]] = {
-    "camera": CameraService,
-    "preprocess": PreprocessService,
-    "infer": InferService,
-    "shooter_bridge": ShooterBridgeService,
-}
+def stage_main(stage_class: type[Service], argv: Sequence[str] | None = None) -> int:
+    """The entry point of one stage process (`python -m courtloc.services.<stage> --config FILE`).
 
-
-def build_stage(name: str, config: DeploymentConfig) -> Service:
-    if name not in STAGE_CLASSES:
-        raise ValueError(f"no stage {name!r}; available: {list(STAGE_CLASSES)}")
-    stage_class = STAGE_CLASSES[name]
+    A stage process loads its own stage and nothing else: a camera never loads onnxruntime.
+    """
+    parser = argparse.ArgumentParser(prog=f"python -m courtloc.services.{stage_class.name}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    parser.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in)")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        config = load_deployment(args.config)
+    except ConfigError as exc:
+        print(exc, file=sys.stderr)
+        return 2
+    name = stage_class.name
     # Each stage presents its own certificate and password (the ACL grants per identity).
     zenoh_config = config.zenoh.model_copy(update={"security": with_identity(config.zenoh.security, name)})
-    return stage_class(config.robot_id, zenoh_config, getattr(config, name))
+    return stage_class(config.robot_id, zenoh_config, getattr(config, name)).run()
