@@ -8,20 +8,26 @@ DEMO_SECONDS ?= 30
 
 .PHONY: demo test bench clean
 
-# The C sources are prerequisites so an existing venv recompiles the kernels after an edit.
-$(BIN)/courtloc-runtime: pyproject.toml services/preprocess/scan_kernel.c localizer/fit_kernel.c
+# The C sources are prerequisites so an existing venv recompiles the kernels after an edit. The install
+# is quiet; native_report says so when a kernel did not compile (the numpy twin runs then, slower).
+$(BIN)/courtloc-runtime: pyproject.toml setup.py services/preprocess/scan_kernel.c localizer/fit_kernel.c
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e .
+	$(BIN)/python -m courtloc.native_report
 	touch $@
 
-# The test venv adds pytest and the training extra (torch pinned to the CPU build).
+# The test venv adds pytest only: no torch (its default wheel is the multi-GB CUDA build). The paper
+# network's tests skip with the reason without it; .ci/run installs the CPU build and runs them.
 $(BIN)/courtloc-test: $(BIN)/courtloc-runtime
-	$(BIN)/python -m pip install --quiet -e '.[test,train]' -c deploy/constraints-cpu.txt
+	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $@
 
+# The demo keeps its model store in the checkout (git-ignored): a model pushed to another clone, or to
+# this user's default store, is not what the demo serves.
+DEMO_STORE ?= .demo-store
 demo: $(BIN)/courtloc-runtime
-	$(BIN)/courtloc up --duration $(DEMO_SECONDS) --summary-json demo-summary.json
+	$(BIN)/courtloc up --duration $(DEMO_SECONDS) --summary-json demo-summary.json --model-store $(DEMO_STORE)
 
 test: $(BIN)/courtloc-test
 	$(BIN)/python -m pytest -q
@@ -30,4 +36,4 @@ bench: $(BIN)/courtloc-runtime
 	$(BIN)/courtloc bench pipeline --json bench-pipeline.json
 
 clean:
-	rm -rf $(VENV) demo-summary.json bench-*.json
+	rm -rf $(VENV) $(DEMO_STORE) demo-summary.json bench-*.json

@@ -14,6 +14,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     up.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in sim demo)")
     up.add_argument("--duration", type=float, default=None, help="stop after S seconds")
     up.add_argument("--summary-json", type=Path, default=None, help="write the run's summary here")
+    up.add_argument("--model-store", type=Path, default=None, metavar="DIR",
+                    help="the infer stage's model store (default: the config's [infer] store); "
+                         "`make demo` keeps one in the checkout")
     up.set_defaults(func=run)
 
 
@@ -31,13 +34,30 @@ def run(args: argparse.Namespace) -> int:
         print(f"{args.config}: [launcher] services is empty: nothing to start here "
               "(this is a pit profile: use `courtloc monitor` or `courtloc model ...`)", file=sys.stderr)
         return 2
+    if args.model_store is not None:
+        config = config.model_copy(update={"infer": config.infer.model_copy(update={"store": args.model_store.resolve()})})
+    if "infer" in config.launcher.services:
+        print(f"model store {config.infer.store}: serving {_active_model(config.infer.store)}", flush=True)
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     summary = run_up(config, args.duration, args.summary_json, stop)
+    pose = summary.get("last_pose")
+    if pose:
+        print(f"served model: {pose['model_name']} v{pose['model_version']}")
     e2e = summary["e2e_latency_ms"]
     print(json.dumps({k: summary[k] for k in ("poses", "solutions", "drops", "rejected", "restarts")}))
     if e2e["n"]:
         print(f"end-to-end latency ({e2e['topic']}): p50 {e2e['p50']:.2f} ms, p99 {e2e['p99']:.2f} ms, "
               f"max {e2e['max']:.2f} ms over {e2e['n']} messages")
     return 0
+
+
+def _active_model(store: Path) -> str:
+    """What the infer stage will serve from `store`, read from its active record before it starts."""
+    from courtloc.services.infer.store import ModelStore
+
+    active = ModelStore(store).record().active
+    if active is None:
+        return "the bundled default (models/default; a fresh store starts with it as default v1)"
+    return f"{active.name} v{active.version} (the store's active model)"

@@ -8,7 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
+from extras import TORCH_MISSING
+
+torch = pytest.importorskip("torch", reason=TORCH_MISSING)
 
 from courtloc.localizer.eval import PaperOnnxModel  # noqa: E402
 from courtloc.localizer.manifest import verify_weights  # noqa: E402

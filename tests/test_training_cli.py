@@ -8,7 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
+from extras import TORCH_MISSING
+
+torch = pytest.importorskip("torch", reason=TORCH_MISSING)
 
 from courtloc.cli import main  # noqa: E402
 from courtloc.training.toy_data import write_toy_dataset  # noqa: E402

@@ -6,7 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
+from extras import TORCH_MISSING
+
+torch = pytest.importorskip("torch", reason=TORCH_MISSING)
 
 from courtloc.localizer.datasets import load_dataset  # noqa: E402
 from courtloc.localizer.eval import PaperOnnxModel, evaluate, open_model  # noqa: E402
