@@ -19,13 +19,14 @@ from pathlib import Path
 
 import numpy as np
 
+from courtloc.cliargs import add_json_argument, positive_float
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in)")
-    parser.add_argument("--minutes", type=float, default=10.0, help="how long to run")
-    parser.add_argument("--window-s", type=float, default=10.0, help="one sample of RSS and latency per window")
-    parser.add_argument("--json", type=Path, default=None, help="write the report here")
+    parser.add_argument("--minutes", type=positive_float, default=10.0, help="how long to run")
+    parser.add_argument("--window-s", type=positive_float, default=10.0, help="one sample of RSS and latency per window")
+    add_json_argument(parser, "the report")
 
 
 def child_processes(parent: int) -> dict[str, int]:

@@ -5,9 +5,11 @@ import argparse
 import json
 import logging
 import signal
-import sys
 import threading
 from pathlib import Path
+
+from courtloc.cli import RUN_EXIT, UsageError
+from courtloc.recording.busargs import add_timeout_argument, wait_for_router
 
 log = logging.getLogger("courtloc.stage")
 
@@ -16,6 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     run = sub.add_parser("run", help="run one stage in this process (placing it on this machine)")
     run.add_argument("service", help="camera | preprocess | infer | shooter_bridge")
     run.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in)")
+    add_timeout_argument(run)
     run.set_defaults(func=run_stage)
 
     router = sub.add_parser("router", help="run a Zenoh router in this process")
@@ -26,15 +29,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_stage(args: argparse.Namespace) -> int:
-    from courtloc.common.config_loader import ConfigError
     from courtloc.deployment import build_stage, load_deployment
 
-    try:
-        config = load_deployment(args.config)
-        stage = build_stage(args.service, config)
-    except (ConfigError, ValueError) as exc:
-        print(exc, file=sys.stderr)
-        return 2
+    config = load_deployment(args.config)  # a bad file, field or stage name raises, named: one line
+    stage = build_stage(args.service, config)
+    if stage.zenoh_config.mode == "client":  # a peer opens without a router; a client waits for one
+        wait_for_router(stage.zenoh_config, args.timeout)
     return stage.run()
 
 
@@ -42,14 +42,9 @@ def run_router(args: argparse.Namespace) -> int:
     import zenoh
 
     from courtloc.common.bus import ZenohConfig, build_zenoh_config
-    from courtloc.common.config_loader import ConfigError
     from courtloc.deployment import load_deployment
 
-    try:
-        config = load_deployment(args.config)
-    except ConfigError as exc:
-        print(exc, file=sys.stderr)
-        return 2
+    config = load_deployment(args.config)
     listen = args.listen or config.router.listen
     router_cfg = ZenohConfig(mode="router", connect=config.router.connect, listen=listen,
                              config_file=config.zenoh.config_file)
@@ -66,12 +61,9 @@ def run_router(args: argparse.Namespace) -> int:
                                 "access_control": access_control(config.robot_id)}.items():
                 zcfg.insert_json5(path, json.dumps(value))
         session = zenoh.open(zcfg)
-    except ValueError as exc:  # a missing credential file
-        print(f"router: {exc}", file=sys.stderr)
-        return 2
-    except zenoh.ZError as exc:
-        print(f"router: cannot listen on {listen}: {str(exc).split(' at ')[0]}", file=sys.stderr)
-        return 1
+    except zenoh.ZError as exc:  # (a missing credential file is a ValueError: one line from courtloc.cli)
+        reason = " ".join(str(exc).split(" at ")[0].split())
+        raise UsageError(f"cannot listen on {', '.join(listen)}: {reason}", RUN_EXIT) from None
     log.info("router listening on %s", ", ".join(listen))
     print(f"router listening on {', '.join(listen)}", flush=True)
     try:

@@ -4,15 +4,16 @@ from __future__ import annotations
 import argparse
 import json
 import signal
-import sys
 import threading
 from pathlib import Path
+
+from courtloc.cliargs import positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     up = sub.add_parser("up", help="start a router and every stage as separate processes")
     up.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in sim demo)")
-    up.add_argument("--duration", type=float, default=None, help="stop after S seconds")
+    up.add_argument("--duration", type=positive_float, default=None, help="stop after S seconds")
     up.add_argument("--summary-json", type=Path, default=None, help="write the run's summary here")
     up.add_argument("--model-store", type=Path, default=None, metavar="DIR",
                     help="the infer stage's model store (default: the config's [infer] store); "
@@ -21,19 +22,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from courtloc.common.config_loader import ConfigError
+    from courtloc.cli import UsageError
     from courtloc.deployment import load_deployment
     from courtloc.launcher import run_up
 
-    try:
-        config = load_deployment(args.config)
-    except ConfigError as exc:
-        print(exc, file=sys.stderr)
-        return 2
+    config = load_deployment(args.config)
     if not config.launcher.services:
-        print(f"{args.config}: [launcher] services is empty: nothing to start here "
-              "(this is a pit profile: use `courtloc monitor` or `courtloc model ...`)", file=sys.stderr)
-        return 2
+        raise UsageError(f"{args.config}: [launcher] services is empty: nothing to start here "
+                         "(this is a pit profile: use `courtloc monitor` or `courtloc model ...`)")
     if args.model_store is not None:
         config = config.model_copy(update={"infer": config.infer.model_copy(update={"store": args.model_store.resolve()})})
     if "infer" in config.launcher.services:
