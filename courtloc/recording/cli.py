@@ -152,14 +152,17 @@ def run_replay(args: argparse.Namespace) -> int:
 
 
 def run_capture(args: argparse.Namespace) -> int:
-    from courtloc.recording.capture import Capture, CaptureOptions
+    from courtloc.recording.capture import CSV_NAME, Capture, CaptureOptions
 
-    config = _deployment(args)
+    if (args.out / CSV_NAME).exists():  # said before waiting for a router (SeedWriter refuses it too)
+        raise UsageError(f"{args.out / CSV_NAME} exists; choose an empty --out folder")
+    config = client_deployment(args)
     options = CaptureOptions(out=args.out, tolerance_ms=args.tolerance_ms, offset_ms=args.offset_ms, n=args.n,
                              duration_s=args.duration, truth_path=args.truth_topic, truth_robot=args.truth_robot)
     stop = _stop_on_signals()
     try:
         capture = Capture(config.robot_id, config.zenoh, options)
+        wait_for_router(config.zenoh, args.timeout)
         ready = lambda: print(f"capturing {config.robot_id} frames + {options.truth_path} to {args.out}", flush=True)  # noqa: E731
         stats = capture.run(stop, on_ready=ready)
     except (ValueError, FileExistsError) as exc:
