@@ -5,6 +5,9 @@ VENV ?= .venv
 PYTHON ?= python3
 BIN := $(VENV)/bin
 DEMO_SECONDS ?= 30
+# setuptools reports every editable install of a package-dir layout like ours ("Editable installation...
+# folders with the same name as your package"): information, not a problem; every other warning still shows.
+PIP_INSTALL := PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pip install --quiet
 
 .PHONY: demo test bench clean
 
@@ -13,14 +16,14 @@ DEMO_SECONDS ?= 30
 $(BIN)/courtloc-runtime: pyproject.toml setup.py services/preprocess/scan_kernel.c localizer/fit_kernel.c
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e .
+	$(PIP_INSTALL) -e .
 	$(BIN)/python -m courtloc.native_report
 	touch $@
 
 # The test venv adds pytest only: no torch (its default wheel is the multi-GB CUDA build). The paper
 # network's tests skip with the reason without it; .ci/run installs the CPU build and runs them.
 $(BIN)/courtloc-test: $(BIN)/courtloc-runtime
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(PIP_INSTALL) -e '.[test]'
 	touch $@
 
 # The demo keeps its model store in the checkout (git-ignored): a model pushed to another clone, or to
