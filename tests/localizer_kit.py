@@ -109,3 +109,17 @@ def _within(diff, tol, what: str) -> None:  # noqa: ANN001
     import numpy as np
 
     assert np.all(np.abs(diff) <= tol), f"{what}: difference {np.abs(diff)} over the rounding tolerance {tol}"
+
+
+def converged_fit_tolerance(fit, iterations: int) -> float:  # noqa: ANN001
+    """How far two correct implementations' converged fits of one frame may differ by rounding alone (m or
+    rad): in each of `iterations` steps the normal equations' entries may differ by n * eps relative (sums
+    of n terms in another order), which moves their solution by up to cond(normal matrix) times that,
+    relative to the pose's scale. Only for a valid fit (its covariance is the inverse normal matrix)."""
+    import numpy as np
+
+    assert fit.valid and fit.covariance is not None
+    scale = 1.0 + float(np.max(np.abs(fit.pose)))
+    tol = iterations * fit.n_hits * np.finfo(np.float64).eps * float(np.linalg.cond(fit.covariance)) * scale
+    assert tol < MEANINGFUL_DIVERGENCE_M, tol  # still tells rounding from a real divergence
+    return tol

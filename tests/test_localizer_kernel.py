@@ -22,7 +22,7 @@ from courtloc.localizer import fit_kernel
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import fit_poses, kernel_active, kernel_enabled
 from courtloc.localizer.projection import lookup_table
-from localizer_kit import assert_fits_agree, rounding_tolerances, twin_setup
+from localizer_kit import assert_fits_agree, converged_fit_tolerance, rounding_tolerances, twin_setup
 
 pytestmark = pytest.mark.skipif(not fit_kernel.available(), reason="compiled fit kernel not built (no C compiler)")
 
@@ -140,10 +140,13 @@ def test_predictor_paths_agree_and_use_the_onnx_table():
     with kernel_enabled(False):
         ref_track = predictor.predict(hits, w, h, previous=POSES[1])
         ref_cold = predictor.predict(hits, w, h)
+        # Both answers converge on this frame's one solution: its conditioning bounds the rounding.
+        fit = predictor.localizer.localize(predictor.projected_hits(hits), np.array(POSES[1])).fit
+    tol = converged_fit_tolerance(fit, predictor.localizer.config.fit.max_iterations)
     assert kernel_active()
     for ref, got in ((ref_track, predictor.predict(hits, w, h, previous=POSES[1])), (ref_cold, predictor.predict(hits, w, h))):
         assert got.valid and (got.mode, got.n_hits, got.n_inliers) == (ref.mode, ref.n_hits, ref.n_inliers)
-        np.testing.assert_allclose([got.x, got.y, got.yaw], [ref.x, ref.y, ref.yaw], rtol=0, atol=1e-9)
+        np.testing.assert_allclose([got.x, got.y, got.yaw], [ref.x, ref.y, ref.yaw], rtol=0, atol=tol)
     empty = predictor.predict(np.zeros((0, 4), np.int16), w, h, previous=POSES[1])
     assert not empty.valid and empty.n_hits == 0
 
