@@ -113,8 +113,13 @@ def user_error(exc: BaseException) -> tuple[str, int] | None:
 def _validation_line(error: dict) -> str:
     where = ".".join(str(p) for p in error.get("loc", ())) or "value"
     given = error.get("input")
-    shown = "" if isinstance(given, dict) or given is None else f", got {given!r}"
-    return f"{where}: {error.get('msg', 'invalid')}{shown}"
+    shown = "" if isinstance(given, dict) or given is None else f", got {_clip(repr(given))}"
+    return f"{where}: {_clip(str(error.get('msg', 'invalid')))}{shown}"
+
+
+def _clip(text: str, limit: int = 80) -> str:
+    """A value quoted in a one-line message: a whole file pasted into it helps nobody."""
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 def _one_line(text: str) -> str:
