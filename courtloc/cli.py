@@ -103,6 +103,8 @@ def user_error(exc: BaseException) -> tuple[str, int] | None:
     kind = f"{type(exc).__module__}.{type(exc).__qualname__}"
     if kind.startswith("mcap.") or kind == "zenoh.ZError" or type(exc).__name__ == "ZError":
         return str(exc).split(" at ")[0], RUN_EXIT  # zenoh appends its source location
+    if kind.startswith(("google.protobuf.", "onnx.", "onnxruntime.")):  # a file that is not a usable ONNX model
+        return f"not a usable ONNX model ({type(exc).__name__}: {exc})", USAGE_EXIT
     if isinstance(exc, ValueError):  # ConfigError, an unknown court or camera name, a bad value
         return str(exc), USAGE_EXIT
     if isinstance(exc, ImportError) and exc.name:  # an optional extra that is not installed

@@ -11,9 +11,9 @@ import pytest
 from buskit import PYTHON, endpoint, free_port
 
 # One or more per verb and per kind of mistake (each is a process: ~0.5 s). (verb words and arguments, a
-# word the line must contain). {tmp}, {data}, {nobody}, {five}, {text} are filled
-# in below: a scratch folder, a small labelled dataset, an endpoint no router listens on, a 5-byte file and
-# a text file.
+# word the line must contain). {tmp}, {data}, {nobody}, {five}, {cut}, {notonnx}, {text} are filled in below:
+# a scratch folder, a small labelled dataset, an endpoint no router listens on, a 5-byte file, a recording
+# cut short after its magic, a text file named model.onnx, and a text file.
 MISTAKES: list[tuple[str, str]] = [
     ("nosuchverb", "nosuchverb"),
     # missing, unreadable or wrong-kind files
@@ -25,6 +25,9 @@ MISTAKES: list[tuple[str, str]] = [
     ("secure sign {text} --key {tmp}/missing.key", "missing.key"),
     ("replay {five}", "MCAP"),
     ("replay {text} --info", "MCAP"),
+    ("replay {cut} --info", "MCAP"),
+    ("bench localize --package {notonnx}", "ONNX"),
+    ("eval --data {data} --model {notonnx}", "ONNX"),
     ("run camera --config {text}", "README"),
     ("up --config {tmp}/missing.toml", "missing.toml"),
     ("preprocess {text}", "README"),
@@ -64,8 +67,12 @@ def places(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     tmp = tmp_path_factory.mktemp("mistakes")
     five = tmp / "five.mcap"
     five.write_bytes(b"hello")
+    cut = tmp / "cut.mcap"  # the MCAP magic, then nothing usable
+    cut.write_bytes(b"\x89MCAP0\r\n\x01\x02")
+    notonnx = tmp / "model.onnx"
+    notonnx.write_text("not a protobuf\n")
     return {"tmp": str(tmp), "data": str(write_toy_dataset(tmp / "toy", frames_per_recording=4)),
-            "nobody": endpoint(free_port()), "five": str(five),
+            "nobody": endpoint(free_port()), "five": str(five), "cut": str(cut), "notonnx": str(notonnx),
             "text": str(Path(__file__).resolve().parents[1] / "README.md")}
 
 

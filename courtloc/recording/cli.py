@@ -130,7 +130,10 @@ def run_replay(args: argparse.Namespace) -> int:
     from mcap.exceptions import McapError
 
     files = _recording_files(args.input)
-    summary = dumps_summary(files)  # reads every file's summary: a broken file is named before replay
+    try:
+        summary = dumps_summary(files)  # reads every file's summary: a broken file is named before replay
+    except (McapError, OSError, EOFError, ValueError) as exc:
+        raise UsageError(f"{args.input}: not a readable MCAP recording ({type(exc).__name__}: {exc})") from exc
     if args.info:
         print(summary)
         return 0
