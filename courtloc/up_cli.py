@@ -7,14 +7,15 @@ import signal
 import threading
 from pathlib import Path
 
-from courtloc.cliargs import positive_float
+from courtloc.cliargs import json_output, positive_float
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     up = sub.add_parser("up", help="start a router and every stage as separate processes")
     up.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in sim demo)")
     up.add_argument("--duration", type=positive_float, default=None, help="stop after S seconds")
-    up.add_argument("--summary-json", type=Path, default=None, help="write the run's summary here")
+    up.add_argument("--summary-json", type=json_output, default=None, metavar="FILE",
+                    help="write the run's summary as JSON to FILE ('-': standard output)")
     up.add_argument("--model-store", type=Path, default=None, metavar="DIR",
                     help="the infer stage's model store (default: the config's [infer] store); "
                          "`make demo` keeps one in the checkout")
