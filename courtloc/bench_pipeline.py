@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from courtloc.cliargs import add_json_argument, positive_float
 from courtloc.common.services_table import RELAY_HOPS
 from courtloc.launcher import run_up
 from courtloc.services.deployment import load_deployment
@@ -23,8 +24,8 @@ from courtloc.services.deployment import load_deployment
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in)")
-    parser.add_argument("--seconds", type=float, default=20.0, help="measurement length")
-    parser.add_argument("--json", type=Path, default=None, help="write the report here")
+    parser.add_argument("--seconds", type=positive_float, default=20.0, help="measurement length")
+    add_json_argument(parser, "the report")
     parser.add_argument("--relay", action="store_true",
                         help="also measure the transport baseline in the same run: a raw frame handed along "
                              "4 processes doing trivial work, and report the ratio")

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from courtloc.cliargs import add_json_argument, positive_float
 from courtloc.common.signals import stop_on_signals
 from courtloc.services.deployment import load_deployment
 from courtloc.watch import BusWatcher
@@ -25,9 +26,9 @@ from courtloc.watch import BusWatcher
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in)")
-    parser.add_argument("--minutes", type=float, default=10.0, help="how long to run")
-    parser.add_argument("--window-s", type=float, default=10.0, help="one sample of RSS and latency per window")
-    parser.add_argument("--json", type=Path, default=None, help="write the report here")
+    parser.add_argument("--minutes", type=positive_float, default=10.0, help="how long to run")
+    parser.add_argument("--window-s", type=positive_float, default=10.0, help="one sample of RSS and latency per window")
+    add_json_argument(parser, "the report")
 
 
 def child_processes(parent: int) -> dict[str, int]:

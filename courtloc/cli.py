@@ -4,11 +4,16 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import struct
 import sys
+import traceback
 from types import ModuleType
-from typing import Sequence
+from typing import NoReturn, Sequence
+
+from pydantic import ValidationError
 
 from courtloc import bench, model_cli, preprocess_cli, shooter_cli, stage_cli, up_cli
+from courtloc.cli_errors import RUN_EXIT, USAGE_EXIT, UsageError
 from courtloc.lab import eval_cli, localizer_cli
 from courtloc.monitor import cli as monitor_cli
 from courtloc.recording import cli as recording_cli
@@ -22,14 +27,86 @@ COMMAND_MODULES: tuple[ModuleType, ...] = (
     preprocess_cli, security_cli, recording_cli, monitor_cli,
 )
 
+EPILOG = """\
+conventions of every command:
+  --json FILE   write the command's JSON result to FILE; `--json -` writes it to standard output
+                instead of the text report
+  --timeout S   commands that join a robot's bus (run, record, replay, monitor, model, dataset capture)
+                wait for its router up to S seconds, naming the endpoint, then give up with one line
+  a mistake (a missing file, a bad number, an unknown name, no router) is one line on standard error and
+  a non-zero exit (2: the command line or an input file, 1: the run failed); -v adds the traceback
+"""
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse's errors as one line (the usage is one `--help` away); sub-parsers inherit the class."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(USAGE_EXIT, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="courtloc", description=__doc__)
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    parser = OneLineParser(prog="courtloc", description=__doc__, epilog=EPILOG,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("-v", "--verbose", action="count", default=0,
+                        help="more log output (-vv for debug); a mistake's traceback")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for module in COMMAND_MODULES:
         module.register(sub)
+    _name_commands(parser)
     return parser
+
+
+def _name_commands(parser: argparse.ArgumentParser) -> None:
+    """Every (sub-)parser leaves its full name (`courtloc secure sign`) in args.prog_name for messages."""
+    parser.set_defaults(prog_name=parser.prog)
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                _name_commands(child)
+
+
+def user_error(exc: BaseException) -> tuple[str, int] | None:
+    """(one line, exit code) for the exception kinds a user's input causes; None for anything else (a bug:
+    its traceback is the useful report)."""
+    if isinstance(exc, UsageError):
+        return str(exc), exc.exit_code
+    if isinstance(exc, ValidationError):
+        return "; ".join(_validation_line(e) for e in exc.errors(include_url=False)), USAGE_EXIT
+    if isinstance(exc, OSError) and exc.filename is not None:  # missing, unreadable, a folder for a file...
+        return f"{exc.filename}: {exc.strerror or exc}", USAGE_EXIT
+    if isinstance(exc, (FileNotFoundError, FileExistsError, IsADirectoryError, NotADirectoryError,
+                        PermissionError)):  # raised by our own code with the path in the message
+        return str(exc), USAGE_EXIT
+    if isinstance(exc, OSError):
+        return str(exc), RUN_EXIT
+    if isinstance(exc, (struct.error, EOFError, UnicodeDecodeError)):  # a file that is not what it claims
+        return f"not a readable file of the expected kind ({type(exc).__name__}: {exc})", USAGE_EXIT
+    kind = f"{type(exc).__module__}.{type(exc).__qualname__}"
+    if kind.startswith("mcap.") or kind == "zenoh.ZError" or type(exc).__name__ == "ZError":
+        return str(exc).split(" at ")[0], RUN_EXIT  # zenoh appends its source location
+    if kind.startswith(("google.protobuf.", "onnx.", "onnxruntime.")):  # a file that is not a usable ONNX model
+        return f"not a usable ONNX model ({type(exc).__name__}: {exc})", USAGE_EXIT
+    if isinstance(exc, ValueError):  # ConfigError, an unknown court or camera name, a bad value
+        return str(exc), USAGE_EXIT
+    if isinstance(exc, ImportError) and exc.name:  # an optional extra that is not installed
+        return f"{exc.name} is not installed ({exc}): see README, Development", USAGE_EXIT
+    return None
+
+
+def _validation_line(error: dict) -> str:
+    where = ".".join(str(p) for p in error.get("loc", ())) or "value"
+    given = error.get("input")
+    shown = "" if isinstance(given, dict) or given is None else f", got {_clip(repr(given))}"
+    return f"{where}: {_clip(str(error.get('msg', 'invalid')))}{shown}"
+
+
+def _clip(text: str, limit: int = 80) -> str:
+    """A value quoted in a one-line message: a whole file pasted into it helps nobody."""
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
+def _one_line(text: str) -> str:
+    return " | ".join(line.strip() for line in text.strip().splitlines() if line.strip()) or "failed"
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -39,8 +116,20 @@ def main(argv: Sequence[str] | None = None) -> None:
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     if not getattr(args, "func", None):
         parser.print_help()
-        sys.exit(2)
-    code = args.func(args)
+        sys.exit(USAGE_EXIT)
+    try:
+        code = args.func(args)
+    except KeyboardInterrupt:
+        sys.exit(130)
+    except Exception as exc:  # noqa: BLE001 - sorted below: a user's mistake is one line, a bug re-raised
+        said = user_error(exc)
+        if said is None:
+            raise
+        if args.verbose:
+            traceback.print_exc()
+        line, exit_code = said
+        print(f"{args.prog_name}: {_one_line(line)}", file=sys.stderr)
+        sys.exit(exit_code)
     sys.exit(int(code or 0))
 
 

@@ -6,26 +6,31 @@ import json
 import sys
 from pathlib import Path
 
+from courtloc.cli_errors import RUN_EXIT, UsageError
+from courtloc.cliargs import add_json_argument, json_to_stdout, positive_float, positive_int
 from courtloc.common.bus import open_session
-from courtloc.model_client import ModelClient, ModelClientError
-from courtloc.recording.busargs import add_client_arguments, client_deployment
+from courtloc.model_client import ModelClient, ModelClientError, push_files
+from courtloc.recording.busargs import add_client_arguments, client_deployment, wait_for_router
+
+# A pit command asks and expects an answer: it does not wait for a router for ever by default.
+ROUTER_TIMEOUT_S = 10.0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     model = sub.add_parser("model", help="push, list, activate, roll back or shadow models on a robot")
     common = argparse.ArgumentParser(add_help=False)
-    add_client_arguments(common)
-    common.add_argument("--json", action="store_true", help="print the robot's reply as JSON")
+    add_client_arguments(common, timeout_s=ROUTER_TIMEOUT_S)
+    add_json_argument(common, "the robot's reply")
     ops = model.add_subparsers(dest="model_op", metavar="OP", required=True)
 
     push = ops.add_parser("push", parents=[common], help="send a model (ONNX file or package folder); resumable")
     push.add_argument("source", type=Path)
     push.add_argument("--no-activate", action="store_true", help="store and validate only")
-    push.add_argument("--chunk-mb", type=float, default=4.0)
+    push.add_argument("--chunk-mb", type=positive_float, default=4.0)
     push.set_defaults(func=_run, action="push")
     ops.add_parser("list", parents=[common], help="models in the robot's store").set_defaults(func=_run, action="list")
     activate = ops.add_parser("activate", parents=[common], help="serve a stored version")
-    activate.add_argument("version", type=int)
+    activate.add_argument("version", type=positive_int)
     activate.add_argument("--name", default=None)
     activate.set_defaults(func=_run, action="activate")
     ops.add_parser("rollback", parents=[common], help="serve the previously active model").set_defaults(
@@ -37,11 +42,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    try:
-        config = client_deployment(args)
-    except ValueError as exc:  # ConfigError included: a bad file or a missing credential, named
-        print(exc, file=sys.stderr)
-        return 2
+    if args.action == "push":
+        try:
+            push_files(args.source)  # a missing source is said before the bus is joined
+        except ModelClientError as exc:
+            raise UsageError(str(exc)) from None
+    if args.action == "shadow" and args.version not in ("off", "status") and not args.version.isdigit():
+        raise UsageError(f"version must be a number, 'off' or 'status', got {args.version!r}")
+    config = client_deployment(args)  # a bad file or a missing credential raises, named
+    wait_for_router(config.zenoh, args.timeout)
     session = open_session(config.zenoh)
     assert session is not None
     try:
@@ -62,8 +71,7 @@ def _run(args: argparse.Namespace) -> int:
         else:
             reply = _shadow(client, args)
     except ModelClientError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
+        raise UsageError(str(exc), RUN_EXIT) from None
     finally:
         session.close()
     _print_reply(reply, args.json)
@@ -78,10 +86,11 @@ def _shadow(client, args: argparse.Namespace):  # noqa: ANN001, ANN202
     return client.shadow(int(args.version), args.name)
 
 
-def _print_reply(reply, as_json: bool) -> None:  # noqa: ANN001
-    if as_json:
-        print(json.dumps(reply.model_dump(), indent=2))
-        return
+def _print_reply(reply, json_out: Path | None) -> None:  # noqa: ANN001
+    if json_out is not None:
+        json_out.write_text(json.dumps(reply.model_dump(), indent=2))
+        if json_to_stdout(json_out):
+            return
     if not reply.ok:
         print(f"refused: {reply.reason}")
         return

@@ -6,7 +6,8 @@ import json
 import sys
 from pathlib import Path
 
-from courtloc.common.config_loader import ConfigError
+from courtloc.cli_errors import UsageError
+from courtloc.cliargs import add_json_argument, json_to_stdout, nonnegative_float
 from courtloc.services.shooter_bridge.config import load_shooter_config, make_rpm_source
 from courtloc.shot import ballistics
 from courtloc.shot.rpm import RpmTable, TableError
@@ -20,11 +21,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     fit.add_argument("table", type=Path, help="CSV with header distance_m,rpm")
     fit.add_argument("--config", type=Path, help="shooter config (TOML); its physics and mount are the start point")
     fit.add_argument("--no-drag", action="store_true", help="keep the config's drag, fit slip only")
-    fit.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_json_argument(fit)
     fit.set_defaults(func=run_fit)
 
     rpm = commands.add_parser("rpm", help="the RPM for a distance (table if given, else the physics prior)")
-    rpm.add_argument("distance", type=float, help="floor distance from the release point to the ring centre, m")
+    rpm.add_argument("distance", type=nonnegative_float,
+                     help="floor distance from the release point to the ring centre, m (>= 0)")
     rpm.add_argument("--table", type=Path, help="CSV with header distance_m,rpm (overrides the config's)")
     rpm.add_argument("--config", type=Path, help="shooter config (TOML)")
     rpm.set_defaults(func=run_rpm)
@@ -32,11 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _load(config_path: Path | None):  # noqa: ANN202 - ShooterConfig, imported lazily
 
-    try:
-        return load_shooter_config(config_path)
-    except ConfigError as exc:
-        print(exc, file=sys.stderr)
-        return None
+    return load_shooter_config(config_path)  # a bad file or field raises ConfigError, named: one line
 
 
 def _ring_height(config) -> float:  # noqa: ANN001
@@ -45,27 +43,24 @@ def _ring_height(config) -> float:  # noqa: ANN001
 
 def run_fit(args: argparse.Namespace) -> int:
     config = _load(args.config)
-    if config is None:
-        return 2
     try:
         table = RpmTable.load(args.table)
     except TableError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        raise UsageError(str(exc)) from None
     base = config.rpm.physics.model(config.mount.release_height_m, _ring_height(config))
     try:
         result = ballistics.fit(table.distances_m, table.rpms, base, fit_drag=not args.no_drag)
     except ballistics.UnreachableShot as exc:
-        print(f"error: a table distance cannot be reached at this launch angle: {exc}", file=sys.stderr)
-        return 2
+        raise UsageError(f"a table distance cannot be reached at this launch angle: {exc}") from None
     m = result.model
-    if args.json:
-        print(json.dumps({
+    if args.json is not None:
+        args.json.write_text(json.dumps({
             "table": str(args.table), "rows": len(table.rpms), "slip": m.slip, "drag_per_m": m.drag_per_m,
             "launch_angle_deg": m.launch_angle_deg, "release_height_m": m.release_height_m,
             "wheel_radius_m": m.wheel_radius_m, "rms_rpm": result.rms_rpm, "max_abs_rpm": result.max_rpm,
             "residuals_rpm": list(result.residuals_rpm)}, indent=1))
-        return 0
+        if json_to_stdout(args.json):
+            return 0
     print(f"table {args.table}: {len(table.rpms)} rows, {table.range_m[0]:.2f}..{table.range_m[1]:.2f} m")
     print(f"fixed: launch {m.launch_angle_deg:g} deg, release {m.release_height_m:g} m, ring {m.ring_height_m:g} m, "
           f"wheel radius {m.wheel_radius_m:g} m")
@@ -79,15 +74,12 @@ def run_fit(args: argparse.Namespace) -> int:
 
 def run_rpm(args: argparse.Namespace) -> int:
     config = _load(args.config)
-    if config is None:
-        return 2
     if args.table is not None:
         config = config.model_copy(update={"rpm": config.rpm.model_copy(update={"table": args.table})})
     try:
         source = make_rpm_source(config, _ring_height(config))
     except TableError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        raise UsageError(str(exc)) from None
     lookup = source.lookup(args.distance)
     note = " (clamped: distance outside the table)" if lookup.clamped else ""
     print(f"{lookup.rpm:.0f}")

@@ -10,11 +10,12 @@ from pathlib import Path
 
 import zenoh
 
+from courtloc.cli_errors import RUN_EXIT, UsageError
 from courtloc.common.bus import ZenohConfig, build_zenoh_config
-from courtloc.common.config_loader import ConfigError
 from courtloc.common.security import router_settings
 from courtloc.common.services_table import SERVICES
 from courtloc.common.signals import stop_on_signals
+from courtloc.recording.busargs import add_timeout_argument, wait_for_router
 from courtloc.security.acl import access_control
 from courtloc.services.deployment import load_deployment
 
@@ -25,6 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     run = sub.add_parser("run", help="run one stage in this process (placing it on this machine)")
     run.add_argument("service", help="camera | preprocess | infer | shooter_bridge")
     run.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in)")
+    add_timeout_argument(run)
     run.set_defaults(func=run_stage)
 
     router = sub.add_parser("router", help="run a Zenoh router in this process")
@@ -42,8 +44,10 @@ def stage_argv(name: str, config: Path | None, verbose: int = 0) -> list[str]:
 
 def run_stage(args: argparse.Namespace) -> int:
     if args.service not in SERVICES:
-        print(f"no stage {args.service!r}; available: {list(SERVICES)}", file=sys.stderr)
-        return 2
+        raise UsageError(f"no stage {args.service!r}; available: {', '.join(SERVICES)}")
+    config = load_deployment(args.config)  # a bad file or field raises, named: one line
+    if config.zenoh.mode == "client":  # a peer opens without a router; a client waits for one
+        wait_for_router(config.zenoh, args.timeout)
     logging.shutdown()
     sys.stdout.flush()
     sys.stderr.flush()
@@ -52,11 +56,7 @@ def run_stage(args: argparse.Namespace) -> int:
 
 
 def run_router(args: argparse.Namespace) -> int:
-    try:
-        config = load_deployment(args.config)
-    except ConfigError as exc:
-        print(exc, file=sys.stderr)
-        return 2
+    config = load_deployment(args.config)
     listen = args.listen or config.router.listen
     router_cfg = ZenohConfig(mode="router", connect=config.router.connect, listen=listen,
                              config_file=config.zenoh.config_file)
@@ -68,12 +68,9 @@ def run_router(args: argparse.Namespace) -> int:
                                 "access_control": access_control(config.robot_id)}.items():
                 zcfg.insert_json5(path, json.dumps(value))
         session = zenoh.open(zcfg)
-    except ValueError as exc:  # a missing credential file
-        print(f"router: {exc}", file=sys.stderr)
-        return 2
-    except zenoh.ZError as exc:
-        print(f"router: cannot listen on {listen}: {str(exc).split(' at ')[0]}", file=sys.stderr)
-        return 1
+    except zenoh.ZError as exc:  # (a missing credential file is a ValueError: one line from courtloc.cli)
+        reason = " ".join(str(exc).split(" at ")[0].split())
+        raise UsageError(f"cannot listen on {', '.join(listen)}: {reason}", RUN_EXIT) from None
     log.info("router listening on %s", ", ".join(listen))
     print(f"router listening on {', '.join(listen)}", flush=True)
     try:

@@ -41,17 +41,19 @@ from courtloc.sim.render import Renderer
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
 
+from courtloc.cliargs import add_json_argument, positive_int
+
 SWAP_FPS = 30.0
 SWAP_LEAD_FRAMES = 60  # frames served before the swap starts: the "before" distribution
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--json", type=Path, required=True, help="write the result here")
+    add_json_argument(parser, "the result", required=True)
     parser.add_argument("--paper", type=Path, default=None,
                         help="a trained paper model (.onnx, dense or sparse) or a folder of them; "
                              "without it the paper rows are omitted")
-    parser.add_argument("--frames", type=int, default=100, help="frames timed per model")
-    parser.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
+    parser.add_argument("--frames", type=positive_int, default=100, help="frames timed per model")
+    parser.add_argument("--threads", type=positive_int, default=1, help="onnxruntime intra-op threads")
     parser.add_argument("--worker", choices=["model", "swap"], default=None, help=argparse.SUPPRESS)
     parser.add_argument("--model", type=Path, default=None, help=argparse.SUPPRESS)
     parser.add_argument("--hits", type=Path, default=None, help=argparse.SUPPRESS)

@@ -29,16 +29,18 @@ from courtloc.localizer.predictor import load_predictor
 from courtloc.sim.edges import scan_hits
 from courtloc.sim.render import Renderer
 
+from courtloc.cliargs import add_json_argument, nonnegative_int, positive_int
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--package", type=Path, help="localizer package folder (default: the bundled models/default)")
-    parser.add_argument("--frames", type=int, default=40, help="distinct twin frames")
-    parser.add_argument("--repeats", type=int, default=20, help="tracking runs per frame")
-    parser.add_argument("--cold-repeats", type=int, default=2, help="cold-start runs per frame")
+    parser.add_argument("--frames", type=positive_int, default=40, help="distinct twin frames")
+    parser.add_argument("--repeats", type=positive_int, default=20, help="tracking runs per frame")
+    parser.add_argument("--cold-repeats", type=nonnegative_int, default=2, help="cold-start runs per frame")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--compare-sequential", action="store_true",
                         help="also time the one-start-at-a-time fit path side by side (same frames, interleaved)")
-    parser.add_argument("--json", type=Path, help="also write the result here")
+    add_json_argument(parser, "the result")
 
 
 def _frames(predictor, n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:

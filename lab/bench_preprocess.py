@@ -18,7 +18,6 @@ import json
 import os
 import platform
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -32,15 +31,17 @@ from courtloc.sim.render import Renderer
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
 
+from courtloc.cliargs import add_json_argument, positive_float, positive_int
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--json", type=Path, default=None, help="write the report here as well")
-    parser.add_argument("--width", type=int, default=640)
-    parser.add_argument("--height", type=int, default=480)
-    parser.add_argument("--frames", type=int, default=32, help="distinct frames cycled through by the fast path")
-    parser.add_argument("--reference-frames", type=int, default=6, help="frames walked by the slow reference")
-    parser.add_argument("--seconds", type=float, default=4.0, help="approximate total measuring time")
-    parser.add_argument("--rounds", type=int, default=3, help="fast/reference alternations")
+    add_json_argument(parser, "the report")
+    parser.add_argument("--width", type=positive_int, default=640)
+    parser.add_argument("--height", type=positive_int, default=480)
+    parser.add_argument("--frames", type=positive_int, default=32, help="distinct frames cycled through by the fast path")
+    parser.add_argument("--reference-frames", type=positive_int, default=6, help="frames walked by the slow reference")
+    parser.add_argument("--seconds", type=positive_float, default=4.0, help="approximate total measuring time")
+    parser.add_argument("--rounds", type=positive_int, default=3, help="fast/reference alternations")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--court", default=None, help="use the twin's renders of this court instead of drawn lines")
 

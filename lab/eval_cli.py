@@ -9,6 +9,8 @@ from courtloc.lab.dataset_args import add_dataset_arguments
 from courtloc.lab.datasets import Dataset, duplicate_report
 from courtloc.lab.eval import evaluate, open_model, write_plots, write_predictions_csv
 
+from courtloc.cliargs import add_json_argument, json_to_stdout, positive_float, positive_int
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("eval", help="evaluate a localization model on a labelled dataset")
@@ -17,10 +19,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         help="a paper-network .onnx or a model folder (default: the bundled models/default)")
     parser.add_argument("--recordings", nargs="+", default=None, metavar="REC",
                         help="evaluate only these recordings")
-    parser.add_argument("--json", type=Path, default=None, help="write the metrics here as JSON")
+    add_json_argument(parser, "the metrics")
     parser.add_argument("--plots", type=Path, default=None,
                         help="folder for plots (needs matplotlib) and per-frame predictions.csv")
-    parser.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
+    parser.add_argument("--threads", type=positive_int, default=1, help="onnxruntime intra-op threads")
     parser.add_argument("--no-tracking", action="store_true",
                         help="localise every frame on its own (default: consecutive frames of a recording "
                              "get the previous prediction as prior, as on the robot)")
@@ -29,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     report = sub.add_parser("duplicates", help="recordings, frame counts and duplicate frames of a labelled dataset")
     add_dataset_arguments(report)
-    report.add_argument("--jaccard", type=float, default=0.1,
+    report.add_argument("--jaccard", type=positive_float, default=0.1,
                         help="near-identical: Jaccard distance of the dot-pixel sets below this")
     report.set_defaults(func=_dataset)
 
@@ -50,10 +52,11 @@ def _eval(args: argparse.Namespace) -> int:
     result = evaluate(model, dataset, indices, progress=not args.no_progress)
     metrics = result.metrics.as_dict()
     text = json.dumps(metrics, indent=1)
-    print(text)
-    if args.json:
+    if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(text + "\n")
+    if not json_to_stdout(args.json):
+        print(text)
     if args.plots:
         args.plots.mkdir(parents=True, exist_ok=True)
         write_predictions_csv(result, args.plots / "predictions.csv")

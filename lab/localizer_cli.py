@@ -21,6 +21,9 @@ from courtloc.localizer.package import load_package
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
 
+from courtloc.cli_errors import UsageError
+from courtloc.cliargs import add_json_argument, nonnegative_float, positive_int
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser("localizer", help="geometric localizer: build a package, cross-recording evaluation")
@@ -33,7 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     build.add_argument("--config", type=Path, help="LocalizerConfig JSON (default: built-in defaults)")
     build.add_argument("--report", type=Path, help="crosseval JSON: its numbers go into the manifest and README")
     build.add_argument("--name", default="courtloc-geometric")
-    build.add_argument("--version", type=int, default=1)
+    build.add_argument("--version", type=positive_int, default=1)
     build.set_defaults(func=_build)
 
     cross = ops.add_parser("crosseval", help="tune on one recording, test on the other, both ways (seed format)")
@@ -42,10 +45,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     cross.add_argument("--court", default="seed-gazebo")
     cross.add_argument("--camera", default="seed-gazebo")
     cross.add_argument("--config", type=Path, help="base LocalizerConfig JSON")
-    cross.add_argument("--lag-s", type=float, default=0.0147, help="label lag behind the image (0: raw labels)")
-    cross.add_argument("--step", type=int, default=1, help="use every step-th frame")
-    cross.add_argument("--cold-step", type=int, default=20, help="cold-start pass on every k-th test frame")
-    cross.add_argument("--json", type=Path, required=True)
+    cross.add_argument("--lag-s", type=nonnegative_float, default=0.0147,
+                       help="label lag behind the image (0: raw labels)")
+    cross.add_argument("--step", type=positive_int, default=1, help="use every step-th frame")
+    cross.add_argument("--cold-step", type=positive_int, default=20, help="cold-start pass on every k-th test frame")
+    add_json_argument(cross, "the cross-recording report", required=True)
     cross.add_argument("--config-out", type=Path,
                        help="write a direction's tuned config (LocalizerConfig JSON): see --config-tuned-on")
     cross.add_argument("--config-tuned-on", help="--config-out takes the settings tuned on this recording "
@@ -58,10 +62,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     resid.add_argument("--data", type=Path, required=True, help="seed-format folder (images/ + pose_data.csv)")
     resid.add_argument("--csv", type=Path)
     resid.add_argument("--model", type=Path, help="localizer package folder (default: the bundled one)")
-    resid.add_argument("--lag-s", type=float, default=0.0147, help="label lag behind the image (0: raw labels)")
-    resid.add_argument("--step", type=int, default=3, help="use every step-th frame")
+    resid.add_argument("--lag-s", type=nonnegative_float, default=0.0147,
+                       help="label lag behind the image (0: raw labels)")
+    resid.add_argument("--step", type=positive_int, default=3, help="use every step-th frame")
     resid.add_argument("--no-band-bias", action="store_true", help="the package's config with the thin-band bias off")
-    resid.add_argument("--json", type=Path)
+    add_json_argument(resid, "the residual tables")
     resid.set_defaults(func=_residuals)
 
 
@@ -107,7 +112,7 @@ def _crosseval(args: argparse.Namespace) -> int:
     if args.config_out:
         directions = [d for d in report["directions"] if args.config_tuned_on in (None, d["tuned_on"])]
         if not directions:
-            raise SystemExit(f"--config-tuned-on {args.config_tuned_on}: not one of {report['recordings']}")
+            raise UsageError(f"--config-tuned-on {args.config_tuned_on}: not one of {report['recordings']}")
         cfg = apply_settings(base, directions[0]["chosen"])
         args.config_out.write_text(cfg.model_dump_json(indent=1))
     for d in report["directions"]:

@@ -13,6 +13,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -21,6 +22,9 @@ from courtloc.lab.datasets import Dataset
 from courtloc.lab.eval import PaperOnnxModel
 from courtloc.lab.metrics import compute_metrics
 
+from courtloc.cli_errors import RUN_EXIT, UsageError
+from courtloc.cliargs import add_json_argument, nonnegative_int, positive_int
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", action="append", required=True, metavar="NAME=FILE",
@@ -28,9 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", type=Path, required=True, help="dataset folder (images/ + pose_data.csv)")
     parser.add_argument("--csv", type=Path, default=None)
     parser.add_argument("--recordings", nargs="+", default=None, help="frames of these recordings only")
-    parser.add_argument("--frames", type=int, default=300, help="evenly spaced frames to use (0 = all)")
-    parser.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads")
-    parser.add_argument("--json", type=Path, default=None, help="also write the rows here")
+    parser.add_argument("--frames", type=nonnegative_int, default=300, help="evenly spaced frames to use (0 = all)")
+    parser.add_argument("--threads", type=positive_int, default=1, help="onnxruntime intra-op threads")
+    add_json_argument(parser, "the rows")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
 
 
@@ -68,24 +72,33 @@ def _worker(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     if args.worker:
         return _worker(args)
+    for spec in args.model:  # said here, once, not by a worker process per model
+        if "=" not in spec:
+            raise UsageError(f"--model wants NAME=FILE, got {spec!r}")
+        if not Path(spec.split("=", 1)[1]).is_file():
+            raise UsageError(f"--model {spec}: no such file")
+    _frames(args)  # a missing or malformed dataset raises here, named
     rows = []
     for spec in args.model:
-        if "=" not in spec:
-            raise SystemExit(f"--model wants NAME=FILE, got {spec!r}")
         cmd = [sys.executable, "-c", "from courtloc.cli import main; main()", "bench", "paper", "--worker", "--model", spec,
                "--data", str(args.data), "--frames", str(args.frames), "--threads", str(args.threads)]
         if args.csv:
             cmd += ["--csv", str(args.csv)]
         if args.recordings:
             cmd += ["--recordings", *args.recordings]
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
-        out = proc.stdout.read()
-        proc.stdout.close()
-        # Reap it ourselves: wait4 gives this child's own peak RSS (ru_maxrss, KiB on Linux).
-        _, status, usage = os.wait4(proc.pid, 0)
-        proc.returncode = os.waitstatus_to_exitcode(status)
+        with tempfile.TemporaryFile("w+") as errors:  # a file, not a pipe: read after the exit, never blocks
+            proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=errors, text=True)
+            out = proc.stdout.read()
+            proc.stdout.close()
+            # Reap it ourselves: wait4 gives this child's own peak RSS (ru_maxrss, KiB on Linux).
+            _, status, usage = os.wait4(proc.pid, 0)
+            proc.returncode = os.waitstatus_to_exitcode(status)
+            errors.seek(0)
+            said = errors.read()
         if proc.returncode:
-            raise SystemExit(f"benchmark of {spec} failed (exit {proc.returncode})")
+            last = said.strip().splitlines()[-1] if said.strip() else f"exit {proc.returncode}"
+            raise UsageError(f"benchmark of {spec} failed: {last}", RUN_EXIT)
+        sys.stderr.write(said)
         row = json.loads(out.strip().splitlines()[-1])
         row["peak_rss_mb"] = usage.ru_maxrss / 1024
         rows.append(row)

@@ -12,15 +12,17 @@ from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
 from scipy.spatial import cKDTree
 
+from courtloc.cliargs import add_json_argument, nonnegative_int, positive_int
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--court", default="seed-gazebo", help="court name or JSON path")
     parser.add_argument("--camera", default=None, help="camera name or JSON path (default: the court's)")
-    parser.add_argument("--frames", type=int, default=300, help="frames per variant")
+    parser.add_argument("--frames", type=positive_int, default=300, help="frames per variant")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--realism-frames", type=int, default=50,
+    parser.add_argument("--realism-frames", type=nonnegative_int, default=50,
                         help="frames run through the preprocess stage to count hits on the court's white edges")
-    parser.add_argument("--json", dest="json_out", default=None, help="also write the results to this file")
+    add_json_argument(parser, "the results")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -50,9 +52,8 @@ def run(args: argparse.Namespace) -> int:
             results[f"{name}_hits_within_10cm_of_white_edge"] = round(on_edge, 3)
     text = json.dumps(results, indent=1)
     print(text)
-    if args.json_out:
-        with open(args.json_out, "w") as handle:
-            handle.write(text + "\n")
+    if args.json is not None:
+        args.json.write_text(text + "\n")
     return 0
 
 

@@ -26,7 +26,8 @@ from courtloc.sim.render import RenderOptions
 from courtloc.sim.synth import SynthConfig, synth
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
-from pydantic import ValidationError
+
+from courtloc.cliargs import nonnegative_int, positive_int
 
 # Modules adding sub-commands to `courtloc dataset` (this module adds `synth` itself).
 DATASET_COMMAND_MODULES: tuple[str, ...] = ("courtloc.recording.cli",)
@@ -45,9 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 # ---- dataset synth -----------------------------------------------------------------------------------
 def _register_synth(dataset_sub: argparse._SubParsersAction) -> None:
     p = dataset_sub.add_parser("synth", help="render a labelled synthetic dataset from the digital twin")
-    p.add_argument("--court", required=True, help="court name (see world/courts) or JSON path")
+    p.add_argument("--court", required=True, help="court name (see sim/courts) or JSON path")
     p.add_argument("--camera", default=None, help="camera name or JSON path (default: the court's camera)")
-    p.add_argument("--n", type=int, required=True, help="number of frames")
+    p.add_argument("--n", type=positive_int, required=True, help="number of frames")
     p.add_argument("--out", required=True, help="output directory (resumable: existing frames are kept)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--kind", choices=("raw", "edges"), default="raw",
@@ -57,15 +58,12 @@ def _register_synth(dataset_sub: argparse._SubParsersAction) -> None:
 
 
 def _synth(args: argparse.Namespace) -> int:
-    try:
-        render = None
-        if args.render_options:
-            render = RenderOptions.model_validate(json.loads(open(args.render_options).read()))
-        config = SynthConfig(court=args.court, camera=args.camera, n=args.n, out=args.out, seed=args.seed,
-                             kind=args.kind, render=render)
-    except (ValidationError, OSError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    # A bad file, field or name raises (ValidationError, OSError, ValueError): one line from courtloc.cli.
+    render = None
+    if args.render_options:
+        render = RenderOptions.model_validate(json.loads(open(args.render_options).read()))
+    config = SynthConfig(court=args.court, camera=args.camera, n=args.n, out=args.out, seed=args.seed,
+                         kind=args.kind, render=render)
     start = time.monotonic()
 
     def progress(done: int, total: int, written: int) -> None:
@@ -74,11 +72,7 @@ def _synth(args: argparse.Namespace) -> int:
             bar = "#" * int(30 * done / total)
             print(f"\r[{bar:<30}] {done}/{total} ({written} rendered, {rate:.0f}/s)", end="", file=sys.stderr, flush=True)
 
-    try:
-        summary = synth(config, progress)
-    except ValueError as exc:
-        print(f"\nerror: {exc}", file=sys.stderr)
-        return 2
+    summary = synth(config, progress)
     print(file=sys.stderr)
     print(json.dumps(summary))
     return 0
@@ -91,12 +85,12 @@ def _register_calibrate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--csv", required=True, help="pose CSV: image_filename, x, y, orientation_z")
     p.add_argument("--court", required=True, help="court name or JSON path")
     p.add_argument("--init", default=None, help="starting camera (name or JSON); default: a rough nominal guess")
-    p.add_argument("--frames", type=int, default=300, help="frames used, spread evenly over the CSV")
+    p.add_argument("--frames", type=positive_int, default=300, help="frames used, spread evenly over the CSV")
     p.add_argument("--lag", type=float, default=None, help="image->label lag in seconds (default: the seed's 0.0147)")
     p.add_argument("--fit-scale", action="store_true", help="also fit a court scale factor")
     p.add_argument("--fit-line-width", action="store_true",
                    help="also fit one change of every white element's width (edges move along their normals)")
-    p.add_argument("--check-frames", type=int, default=0,
+    p.add_argument("--check-frames", type=nonnegative_int, default=0,
                    help="render this many labelled frames with the fit and compare their hits with the dots")
     p.add_argument("--out", default=None, help="write the fitted camera JSON here")
     p.set_defaults(func=_calibrate)
@@ -104,16 +98,13 @@ def _register_calibrate(sub: argparse._SubParsersAction) -> None:
 
 def _calibrate(args: argparse.Namespace) -> int:
     lag = SEED_LAG_S if args.lag is None else args.lag
-    try:
-        court = load_court(args.court)
-        options = CalibrationOptions(frames=args.frames, lag_s=lag, fit_scale=args.fit_scale,
-                                     fit_line_width=args.fit_line_width)
-        labels = read_pose_csv(args.csv)
-        dots = load_dot_frames(args.data, args.csv, options.frames, lag, options.min_dots, labels=labels)
-        initial = load_camera(args.init) if args.init else nominal_camera(dots.width, dots.height)
-    except (ValueError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    # A bad file or name raises (ValueError, OSError): one line from courtloc.cli.
+    court = load_court(args.court)
+    options = CalibrationOptions(frames=args.frames, lag_s=lag, fit_scale=args.fit_scale,
+                                 fit_line_width=args.fit_line_width)
+    labels = read_pose_csv(args.csv)
+    dots = load_dot_frames(args.data, args.csv, options.frames, lag, options.min_dots, labels=labels)
+    initial = load_camera(args.init) if args.init else nominal_camera(dots.width, dots.height)
     result = calibrate(court, dots, initial, options)
     print(result.report())
     if args.check_frames:

@@ -150,7 +150,7 @@ def run_model_cli(config: Path, *args: str) -> tuple[int, dict, str]:
 
     from buskit import PYTHON
 
-    done = subprocess.run(["nice", "-n", "10", *PYTHON, "-v", "model", *args, "--config", str(config), "--json"],
+    done = subprocess.run(["nice", "-n", "10", *PYTHON, "-v", "model", *args, "--config", str(config), "--json", "-"],
                           capture_output=True, text=True, timeout=120)
     assert done.stdout, done.stderr
     return done.returncode, json.loads(done.stdout), done.stderr

@@ -4,7 +4,16 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from buskit import BusClient, folder_camera_toml, free_port, start_router, start_stage, write_config, write_line_frames
+from buskit import (
+    BusClient,
+    endpoint,
+    folder_camera_toml,
+    free_port,
+    start_router,
+    start_stage,
+    write_config,
+    write_line_frames,
+)
 
 pytestmark = pytest.mark.integration
 
@@ -19,7 +28,7 @@ def test_stage_started_before_router_connects_when_it_appears(tmp_path: Path) ->
     config = _camera_config(tmp_path, port)
     camera = start_stage("camera", config)
     try:
-        camera.wait_line("cannot open session")  # it is waiting for a router, not dead
+        camera.wait_line(f"waiting for a router at {endpoint(port)}")  # waiting, not dead, and says for what
         assert camera.alive()
         router = start_router(port)
         client = BusClient(port)

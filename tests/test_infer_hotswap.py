@@ -122,7 +122,7 @@ def test_swap_under_30fps_loses_no_frame(robot: dict, frames: TwinFrames) -> Non
     try:
         # The pit laptop is another machine; niced, the CLI here does not take the robot's CPU from the stage.
         push = subprocess.run(["nice", "-n", "10", *PYTHON, "model", "push", str(package),
-                               "--config", str(robot["config"]), "--json"], capture_output=True, text=True, timeout=120)
+                               "--config", str(robot["config"]), "--json", "-"], capture_output=True, text=True, timeout=120)
     finally:
         swap_done.set()
     streamer.join(timeout=30)

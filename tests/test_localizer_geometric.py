@@ -135,7 +135,8 @@ def test_onnx_table_matches_numpy_projection(package, twin):
     numpy_pts = FloorProjector(camera, loc.config.edge_offset_px, loc.config.max_range_m).lookup(hits[:, 0], hits[:, 1])
     np.testing.assert_array_equal(np.isnan(onnx_pts), np.isnan(numpy_pts))
     assert np.isfinite(onnx_pts[:2]).all() and np.isnan(onnx_pts[2:]).all()  # above horizon / outside the image
-    np.testing.assert_allclose(onnx_pts[:2], numpy_pts[:2], atol=1e-6)
+    # The graph gathers the same projection stored as float32: rounding to float32 is all that differs.
+    np.testing.assert_allclose(onnx_pts[:2], numpy_pts[:2], rtol=np.finfo(np.float32).eps / 2, atol=0)
     assert onnx_pts[0, 0] > 0 and abs(onnx_pts[0, 1]) < 0.01  # the centre column looks straight ahead
 
 

@@ -134,7 +134,7 @@ new Promise((resolve, reject) => {
 """
 
 
-@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (CI installs it: .ci/run)")
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed: apt-get install chromium (README, Development; .ci/run installs it)")
 def test_page_shows_the_published_pose_and_is_screenshotted(tmp_path: Path) -> None:
     port = free_port()
     router = start_router(port)

@@ -28,7 +28,7 @@ def odd_image(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarra
 
 def test_preprocess_json_is_exactly_the_documented_format(odd_image: tuple[Path, np.ndarray]) -> None:
     path, frame = odd_image
-    result = courtloc("preprocess", str(path), "--json")
+    result = courtloc("preprocess", str(path), "--json", "-")
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
     assert list(report) == ["width", "height", "hits"]
@@ -54,7 +54,7 @@ def test_preprocess_refuses_bad_files_with_the_reason(tmp_path: Path) -> None:
     empty = tmp_path / "empty.jpg"
     empty.write_bytes(b"")
     for path, words in ((garbage, "not a decodable image"), (empty, "is empty"), (tmp_path / "missing.jpg", "No such")):
-        result = courtloc("preprocess", str(path), "--json")
+        result = courtloc("preprocess", str(path), "--json", "-")
         assert result.returncode == 1
         assert words in result.stderr and result.stdout == ""
 

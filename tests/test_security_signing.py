@@ -76,12 +76,12 @@ def test_unreadable_signature_is_refused(model: Path, content: str) -> None:
 
 def _courtloc(capsys: pytest.CaptureFixture, *args: str) -> tuple[int, str, str]:
     """The real command line, parsed and run in this process (exit code, stdout, stderr)."""
-    from courtloc.cli import build_parser
+    from courtloc.cli import main
 
-    parsed = build_parser().parse_args(list(args))
-    code = parsed.func(parsed)
+    with pytest.raises(SystemExit) as exit_info:  # main's handler: a mistake is one line and an exit code
+        main(list(args))
     out = capsys.readouterr()
-    return code, out.out, out.err
+    return int(exit_info.value.code or 0), out.out, out.err
 
 
 def test_cli_init_sign_verify_roundtrip(tmp_path: Path, model: Path, capsys: pytest.CaptureFixture) -> None:

@@ -58,7 +58,7 @@ def test_cli_rpm_from_table_and_prior(capsys: pytest.CaptureFixture[str]) -> Non
 
 
 def test_cli_fit_reports_slip_drag_and_residual(capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, _ = _run(capsys, "shooter", "fit", str(EXAMPLE_TABLE), "--config", str(EXAMPLE_CONFIG), "--json")
+    code, out, _ = _run(capsys, "shooter", "fit", str(EXAMPLE_TABLE), "--config", str(EXAMPLE_CONFIG), "--json", "-")
     assert code == 0
     result = json.loads(out)
     assert result["slip"] == pytest.approx(0.7, abs=0.01)

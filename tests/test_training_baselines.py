@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from extras import TORCH_MISSING, float32_sum_tolerance
 
-torch = pytest.importorskip("torch")
+torch = pytest.importorskip("torch", reason=TORCH_MISSING)
 
 from courtloc.lab.eval import PaperOnnxModel  # noqa: E402
 from courtloc.localizer.manifest import verify_weights  # noqa: E402
@@ -26,7 +27,9 @@ def test_cnn_export_carries_a_manifest_and_runs(tmp_path: Path) -> None:
     dots = np.zeros((48, 64), np.uint8)
     dots[30:33, 10:20] = 1
     expected = net(torch.from_numpy(dots[16:].astype(np.float32))[None, None]).detach().numpy()[0]
-    assert np.allclose(PaperOnnxModel(path).predict_dots(dots), expected, atol=1e-5)
+    # onnxruntime's and torch's convolutions sum the 4 x 3 x 3 products and the pooled map in their own orders.
+    got = PaperOnnxModel(path).predict_dots(dots)
+    assert np.allclose(got, expected, rtol=0, atol=float32_sum_tolerance(32 * 64, float(np.abs(expected).max())))
 
 
 @pytest.mark.parametrize("arch", ARCHES)

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from extras import TORCH_MISSING
 
-torch = pytest.importorskip("torch")
+torch = pytest.importorskip("torch", reason=TORCH_MISSING)
 
 from courtloc.training.toy_data import write_toy_dataset  # noqa: E402
 

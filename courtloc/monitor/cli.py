@@ -2,42 +2,37 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
-from courtloc.common.config_loader import ConfigError
+from courtloc.cli_errors import RUN_EXIT, UsageError
+from courtloc.cliargs import nonnegative_int, positive_float
 from courtloc.common.signals import stop_on_signals
 from courtloc.monitor.app import Monitor
-from courtloc.recording.busargs import add_client_arguments, client_deployment
+from courtloc.recording.busargs import add_client_arguments, client_deployment, wait_for_router
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     monitor = sub.add_parser("monitor", help="serve a live web page of the robot (pose, health, camera)")
-    monitor.add_argument("--port", type=int, default=8080, help="HTTP port (0: any free port)")
+    monitor.add_argument("--port", type=nonnegative_int, default=8080, help="HTTP port (0: any free port)")
     monitor.add_argument("--host", default="127.0.0.1", help="address to serve on (0.0.0.0: the whole pit LAN)")
     monitor.add_argument("--court", default=None, help="court drawing (default: the sim camera's court)")
-    monitor.add_argument("--rate", type=float, default=15.0, help="page updates per second")
+    monitor.add_argument("--rate", type=positive_float, default=15.0, help="page updates per second (1..60)")
     add_client_arguments(monitor)
     monitor.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        config = client_deployment(args)
-    except (ConfigError, ValueError) as exc:
-        print(exc, file=sys.stderr)
-        return 2
     if not 1.0 <= args.rate <= 60.0:
-        print(f"--rate must be within 1..60, got {args.rate}", file=sys.stderr)
-        return 2
+        raise UsageError(f"--rate must be within 1..60, got {args.rate:g}")
+    config = client_deployment(args)  # a bad file or field raises, named
+    if args.timeout is not None:  # without it the page starts at once and shows "no router" until one answers
+        wait_for_router(config.zenoh, args.timeout)
     try:
         monitor = Monitor(config, args.court or config.camera.sim.get("court", config.court), args.host, args.port, args.rate)
+    except FileNotFoundError:
+        raise
     except OSError as exc:
-        print(f"monitor: cannot serve on {args.host}:{args.port}: {exc.strerror}", file=sys.stderr)
-        return 1
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"monitor: {exc}", file=sys.stderr)
-        return 2
+        raise UsageError(f"cannot serve on {args.host}:{args.port}: {exc.strerror}", RUN_EXIT) from None
     stop = stop_on_signals()
-    print(f"monitor for {config.robot_id}: {monitor.url}", flush=True)
+    print(f"monitor for {config.robot_id} (router {', '.join(config.zenoh.connect)}): {monitor.url}", flush=True)
     monitor.run(stop)
     return 0

@@ -44,11 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_init(args: argparse.Namespace) -> int:
     hostnames = args.hostname or [f"{args.robot}.local"]
-    try:
-        bundles = init_bundles(args.out, args.robot, hostnames, args.team, args.pit_stages)
-    except (FileExistsError, ValueError) as exc:
-        print(f"secure init: {exc}", file=sys.stderr)
-        return 2
+    bundles = init_bundles(args.out, args.robot, hostnames, args.team, args.pit_stages)  # mistakes: one line
     print(f"robot bundle: {bundles.robot.root}  (copy to the robot; set [router] secure_dir and "
           f"[zenoh.security] dir to it)")
     print(f"pit bundle:   {bundles.pit.root}  (stays on the laptop; identity = \"pit\")")

@@ -41,6 +41,8 @@ def _render_golden(court_name: str, camera_name: str) -> list[GoldenFrame]:
     # The twin renders golden frames on the robot until packages ship their own golden inputs (issue 16).
     from courtloc.sim.render import Renderer
 
+    # The twin renders golden frames on the robot until packages ship their own golden inputs (issue 16).
+
     camera = load_camera(camera_name)
     renderer = Renderer(load_court(court_name), camera)
     preprocessor = Preprocessor(PreprocessConfig(frame_width=camera.width, frame_height=camera.height))

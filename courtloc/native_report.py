@@ -1,0 +1,40 @@
+"""Which compiled kernels this install has, said after `make` installs: silent when both built.
+
+Both kernels are optional at build time (no C compiler: the numpy twin runs, same results, slower), and
+pip hides a failed optional build, so the user hears it here. The slow-downs are the measured ones of
+docs/measurements.md.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+
+# module, what runs instead, how much slower (docs/measurements.md: bench preprocess / bench localize)
+KERNELS: tuple[tuple[str, str, str], ...] = (
+    ("courtloc.scan._scan_kernel",
+     "the numpy radial scan (services/preprocess/radial_scan.py)", "~1.8x slower per frame"),
+    ("courtloc.localizer._fit_kernel",
+     "the numpy pose fit (localizer/fit.py) with onnxruntime's floor lookup", "~10x slower per tracked frame"),
+)
+
+
+def missing_kernels() -> list[tuple[str, str, str]]:
+    missing = []
+    for module, fallback, cost in KERNELS:
+        try:
+            importlib.import_module(module)
+        except ImportError:
+            missing.append((module, fallback, cost))
+    return missing
+
+
+def main() -> int:
+    for module, fallback, cost in missing_kernels():
+        print(f"warning: the C kernel {module} did not compile (no C compiler or Python headers?): "
+              f"{fallback} runs instead, {cost} (docs/measurements.md); results are the same",
+              file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

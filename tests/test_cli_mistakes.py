@@ -1,0 +1,108 @@
+"""A newcomer's mistakes through the real `courtloc` command (a process each): every one is answered with one
+line on stderr naming what was wrong, a non-zero exit and no traceback; `-v` adds the traceback."""
+from __future__ import annotations
+
+import subprocess
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+from buskit import PYTHON, endpoint, free_port
+
+# One or more per verb and per kind of mistake (each is a process: ~0.5 s). (verb words and arguments, a
+# word the line must contain). {tmp}, {data}, {nobody}, {five}, {cut}, {notonnx}, {text} are filled in below:
+# a scratch folder, a small labelled dataset, an endpoint no router listens on, a 5-byte file, a recording
+# cut short after its magic, a text file named model.onnx, and a text file.
+MISTAKES: list[tuple[str, str]] = [
+    ("nosuchverb", "nosuchverb"),
+    # missing, unreadable or wrong-kind files
+    ("eval --data {tmp}/missing", "missing"),
+    ("eval --data {data} --model {tmp}/missing.onnx", "missing.onnx"),
+    ("bench localize --package {tmp}/missing", "missing"),
+    ("bench paper --model a={tmp}/missing.onnx --data {data}", "missing.onnx"),
+    ("bench pipeline --config {tmp}/missing.toml", "missing.toml"),
+    ("secure sign {text} --key {tmp}/missing.key", "missing.key"),
+    ("replay {five}", "MCAP"),
+    ("replay {text} --info", "MCAP"),
+    ("replay {cut} --info", "MCAP"),
+    ("bench localize --package {notonnx}", "ONNX"),
+    ("eval --data {data} --model {notonnx}", "ONNX"),
+    ("run camera --config {text}", "README"),
+    ("up --config {tmp}/missing.toml", "missing.toml"),
+    ("preprocess {text}", "README"),
+    ("calibrate --data {data} --csv {tmp}/missing.csv --court seed-gazebo", "missing.csv"),
+    ("shooter fit {tmp}/missing.csv", "missing.csv"),
+    ("shooter rpm 3 --table {text}", "README"),
+    ("model push {tmp}/missing.onnx", "missing.onnx"),
+    ("train --data {tmp}/missing --out {tmp}/run", "missing"),
+    ("export {tmp}/missing.pt --out {tmp}/onnx", "missing.pt"),
+    ("localizer crosseval --data {tmp}/missing --json -", "missing"),
+    ("localizer residuals --data {data} --model {tmp}/missing", "missing"),
+    # no router
+    ("model list --timeout 0.5 --connect {nobody}", "{nobody}"),
+    ("record {tmp}/rec.mcap --timeout 0.5 --connect {nobody}", "{nobody}"),
+    ("monitor --port 0 --timeout 0.5 --connect {nobody}", "{nobody}"),
+    ("router --listen bogus", "bogus"),
+    # bad numbers
+    ("shooter rpm -1", "-1"),
+    ("shooter rpm abc", "abc"),
+    ("dataset synth --court seed-gazebo --n 0 --out {tmp}/synth", "--n"),
+    ("up --duration 0", "--duration"),
+    ("model activate two", "two"),
+    ("monitor --rate 100", "--rate"),
+    ("replay {five} --speed 0", "--speed"),
+    ("localizer crosseval --data {data} --json - --step 0", "--step"),
+    # unknown names
+    ("run nosuchstage", "nosuchstage"),
+    ("dataset synth --court nosuchcourt --n 2 --out {tmp}/synth", "nosuchcourt"),
+    ("record {tmp}/rec.mcap --topics nosuch/topic", "nosuch/topic"),
+]
+
+
+@pytest.fixture(scope="module")
+def places(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    from courtloc.training.toy_data import write_toy_dataset
+
+    tmp = tmp_path_factory.mktemp("mistakes")
+    five = tmp / "five.mcap"
+    five.write_bytes(b"hello")
+    cut = tmp / "cut.mcap"  # the MCAP magic, then nothing usable
+    cut.write_bytes(b"\x89MCAP0\r\n\x01\x02")
+    notonnx = tmp / "model.onnx"
+    notonnx.write_text("not a protobuf\n")
+    return {"tmp": str(tmp), "data": str(write_toy_dataset(tmp / "toy", frames_per_recording=4)),
+            "nobody": endpoint(free_port()), "five": str(five), "cut": str(cut), "notonnx": str(notonnx),
+            "text": str(Path(__file__).resolve().parents[1] / "README.md")}
+
+
+def _courtloc(argv: list[str]) -> subprocess.CompletedProcess:
+    return subprocess.run([*PYTHON, *argv], capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+
+
+def test_every_mistake_is_one_line_and_a_failure(places: dict[str, str]) -> None:
+    cases = [(line.format(**places).split(), word.format(**places)) for line, word in MISTAKES]
+    with ThreadPoolExecutor(max_workers=4) as pool:  # each is a process of its own; a few at a time
+        results = list(pool.map(lambda case: _courtloc(case[0]), cases))
+    wrong = []
+    for (argv, word), done in zip(cases, results):
+        lines = done.stderr.strip().splitlines()
+        if done.returncode == 0 or len(lines) != 1 or "Traceback" in done.stderr or word not in done.stderr:
+            wrong.append(f"courtloc {' '.join(argv)} -> exit {done.returncode}, stderr {done.stderr!r}")
+    assert not wrong, "\n".join(wrong)
+
+
+def test_verbose_shows_the_traceback(places: dict[str, str]) -> None:
+    quiet = _courtloc(["secure", "sign", places["text"], "--key", f"{places['tmp']}/missing.key"])
+    loud = _courtloc(["-v", "secure", "sign", places["text"], "--key", f"{places['tmp']}/missing.key"])
+    assert quiet.returncode == loud.returncode != 0
+    assert "Traceback" not in quiet.stderr and "Traceback" in loud.stderr
+    assert loud.stderr.strip().splitlines()[-1] == quiet.stderr.strip(), "the same one line ends the traceback"
+
+
+def test_a_bug_keeps_its_traceback() -> None:
+    """Only the known kinds of mistake become one line: anything else is a bug and shows where it is."""
+    from courtloc.cli import user_error
+
+    assert user_error(ZeroDivisionError("division by zero")) is None
+    assert user_error(FileNotFoundError(2, "No such file or directory", "x.toml")) == (
+        "x.toml: No such file or directory", 2)
