@@ -28,7 +28,7 @@ class ModelFile:
         try:
             data = path.read_bytes()
         except OSError as exc:
-            raise ManifestError(f"model file not readable: {path.name}: {exc.strerror or exc}") from None
+            raise ManifestError(f"model file not readable: {path}: {exc.strerror or exc}") from None
         try:
             proto = onnx.load_from_string(data)
         except Exception as exc:  # protobuf's DecodeError and friends on a truncated or foreign file

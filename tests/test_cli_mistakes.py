@@ -79,6 +79,8 @@ def _courtloc(argv: list[str]) -> subprocess.CompletedProcess:
     return subprocess.run([*PYTHON, *argv], capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
 
 
+# Dozens of real CLI processes, each importing the whole command set: minutes on a loaded 2-core machine.
+@pytest.mark.timeout(600)
 def test_every_mistake_is_one_line_and_a_failure(places: dict[str, str]) -> None:
     cases = [(line.format(**places).split(), word.format(**places)) for line, word in MISTAKES]
     with ThreadPoolExecutor(max_workers=4) as pool:  # each is a process of its own; a few at a time
