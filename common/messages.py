@@ -16,6 +16,12 @@ from pydantic import BaseModel, ConfigDict, Field
 SCHEMA_VERSION = 1
 HOST = socket.gethostname()
 
+# Time is data: an age below zero means a stamp from the future, which is as untrustworthy as an old one.
+# On one host both stamps come from the same monotonic clock, so nothing legitimate is in the future.
+# Across hosts ages are wall-clock differences: the hosts' clocks must agree within this bound
+# (chrony, the robot serving time; docs/deployment.md "Clocks"), and a stamp further ahead is stale.
+CLOCK_OFFSET_TOLERANCE_NS = 20_000_000
+
 
 class Strict(BaseModel):
     """Base for bus messages: unknown fields are an error, not silently dropped."""
@@ -52,10 +58,20 @@ class Header(Strict):
         return self.model_copy(update={"valid": valid, "stamps": [*self.stamps, stamp]})
 
     def age_ns(self) -> int:
-        """Time since capture: monotonic clock on the capturing host, wall clock across hosts."""
+        """Time since capture: monotonic clock on the capturing host, wall clock across hosts.
+
+        Negative for a stamp from the future; use `is_fresh` to judge it."""
         if self.capture_host == HOST:
             return time.monotonic_ns() - self.capture_mono_ns
         return time.time_ns() - self.capture_wall_ns
+
+    def future_tolerance_ns(self) -> int:
+        """How far ahead of our clock this header's capture stamp may be (clock offset between hosts)."""
+        return 0 if self.capture_host == HOST else CLOCK_OFFSET_TOLERANCE_NS
+
+    def is_fresh(self, budget_ns: float) -> bool:
+        """Captured at most `budget_ns` ago and not from the future (beyond the clocks' tolerance)."""
+        return age_is_fresh(self.age_ns(), budget_ns, self.future_tolerance_ns())
 
     def span_ns(self) -> int:
         """Capture to the latest stamp (end-to-end latency when read by the last stage)."""
@@ -65,6 +81,11 @@ class Header(Strict):
         if last.host == self.capture_host:
             return last.mono_ns - self.capture_mono_ns
         return last.wall_ns - self.capture_wall_ns
+
+
+def age_is_fresh(age_ns: float, budget_ns: float, future_tolerance_ns: float) -> bool:
+    """The one freshness rule: -tolerance <= age <= budget (NaN is never fresh)."""
+    return -future_tolerance_ns <= age_ns <= budget_ns
 
 
 class Frame(Strict):

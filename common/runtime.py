@@ -82,8 +82,8 @@ class Service:
             self._e2e.add(header.span_ns())
 
     def is_fresh(self, header: Header, topic: Topic) -> bool:
-        """Counts and reports stale inputs: older than the table's freshness budget."""
-        fresh = header.age_ns() <= topic.freshness_ms * 1e6
+        """Counts and reports stale inputs: older than the table's freshness budget, or from the future."""
+        fresh = header.is_fresh(topic.freshness_ms * 1e6)
         if not fresh:
             self.stale += 1
         return fresh

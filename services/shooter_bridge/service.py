@@ -76,7 +76,7 @@ class ShooterBridgeService(Service):
             decision = self.policy.decide(None, math.inf, False, now)
         else:
             decision = self.policy.decide(Pose2D(pose.x, pose.y, pose.yaw), pose.header.age_ns() / 1e9,
-                                          pose.header.valid, now)
+                                          pose.header.valid, now, pose.header.future_tolerance_ns() / 1e9)
         self.link.send(*decision.frame_fields())
         if not decision.valid:
             self.holds[decision.reason] += 1
