@@ -11,7 +11,10 @@ import socket
 import time
 from typing import Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from courtloc.common.limits import (MAX_DETAIL_ENTRIES, MAX_HITS, MAX_HITS_BYTES, MAX_IMAGE_BYTES, MAX_IMAGE_PIXELS,
+                                    MAX_IMAGE_SIDE, MAX_STAMPS, HostName, Name, Text)
 
 SCHEMA_VERSION = 1
 HOST = socket.gethostname()
@@ -30,21 +33,21 @@ class Strict(BaseModel):
 
 
 class StageStamp(Strict):
-    stage: str
+    stage: Name
     mono_ns: int
     wall_ns: int
-    host: str = HOST
+    host: HostName = HOST
 
 
 class Header(Strict):
     schema_version: int = SCHEMA_VERSION
-    robot_id: str
+    robot_id: Name
     seq: int = Field(ge=0)
     capture_mono_ns: int
     capture_wall_ns: int
-    capture_host: str = HOST
+    capture_host: HostName = HOST
     valid: bool = False
-    stamps: list[StageStamp] = Field(default_factory=list)
+    stamps: list[StageStamp] = Field(default_factory=list, max_length=MAX_STAMPS)
 
     @classmethod
     def now(cls, robot_id: str, seq: int, stage: str) -> "Header":
@@ -88,14 +91,25 @@ def age_is_fresh(age_ns: float, budget_ns: float, future_tolerance_ns: float) ->
     return -future_tolerance_ns <= age_ns <= budget_ns
 
 
-class Frame(Strict):
+class _Image(Strict):
+    """A declared image size, bounded by the contract before any pixel is looked at."""
+
+    width: int = Field(gt=0, le=MAX_IMAGE_SIDE)
+    height: int = Field(gt=0, le=MAX_IMAGE_SIDE)
+
+    @model_validator(mode="after")
+    def _bounded_area(self) -> "_Image":
+        if self.width * self.height > MAX_IMAGE_PIXELS:
+            raise ValueError(f"{self.width}x{self.height} is more than {MAX_IMAGE_PIXELS} pixels")
+        return self
+
+
+class Frame(_Image):
     """A camera image. `encoding` is 'bgr8' (raw, shape height x width x 3) or 'jpeg'."""
 
     header: Header
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
     encoding: Literal["bgr8", "jpeg"]
-    data: bytes
+    data: bytes = Field(max_length=MAX_IMAGE_BYTES)
 
 
 class GroundTruth(Strict):
@@ -105,18 +119,16 @@ class GroundTruth(Strict):
     x: float
     y: float
     yaw: float
-    source: str
+    source: Name
 
 
-class Edges(Strict):
+class Edges(_Image):
     """Radial-scan hits: int16 rows of (row, col, ray, d) in full-frame pixels, packed little-endian."""
 
     header: Header
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
-    crop_top: int = Field(ge=0)
-    n_hits: int = Field(ge=0)
-    hits: bytes
+    crop_top: int = Field(ge=0, le=MAX_IMAGE_SIDE)
+    n_hits: int = Field(ge=0, le=MAX_HITS)
+    hits: bytes = Field(max_length=MAX_HITS_BYTES)
 
 
 class Pose(Strict):
@@ -125,10 +137,10 @@ class Pose(Strict):
     y: float
     yaw: Optional[float] = None
     quality: float = 0.0
-    model_name: str
+    model_name: Name
     model_version: int
     infer_ms: float
-    reason: str = ""
+    reason: Text = ""
 
 
 class ShotSolution(Strict):
@@ -137,15 +149,15 @@ class ShotSolution(Strict):
     bearing_rad: Optional[float] = None
     rpm: float
     command: Literal["SET_RPM", "HOLD"]
-    reason: str = ""
+    reason: Text = ""
 
 
 class Health(Strict):
     """Published once a second by every service."""
 
     schema_version: int = SCHEMA_VERSION
-    robot_id: str
-    service: str
+    robot_id: Name
+    service: Name
     pid: int = Field(default_factory=os.getpid)
     wall_ns: int = Field(default_factory=time.time_ns)
     uptime_s: float
@@ -160,5 +172,5 @@ class Health(Strict):
     latency_ms_p99: float
     e2e_ms_p50: float = 0.0
     e2e_ms_p99: float = 0.0
-    last_error: str = ""
-    detail: dict[str, float | int | str] = Field(default_factory=dict)
+    last_error: Text = ""
+    detail: dict[Name, float | int | Text] = Field(default_factory=dict, max_length=MAX_DETAIL_ENTRIES)

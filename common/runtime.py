@@ -20,6 +20,7 @@ from pydantic import BaseModel
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, declare_publisher, open_session
 from courtloc.common.inbox import Delivery, LatestInbox
+from courtloc.common.limits import clip_text
 from courtloc.common.messages import Header, Health
 from courtloc.common.services_table import HEALTH_TOPICS, SERVICES, TOPICS, Topic, liveliness_key
 from courtloc.common.stats import LatencyWindow, RateLimitedLog, RateMeter
@@ -47,7 +48,8 @@ class Service:
         self.frames_out = 0
         self.stale = 0
         self.extra_dropped = 0
-        self.rejected: dict[str, int] = {}
+        self.rejected: dict[str, int] = {}  # per input topic
+        self.rejected_by_reason: dict[str, int] = {}
         self.published: dict[str, int] = {}
         self.last_error = ""
         self._latency = LatencyWindow()
@@ -88,14 +90,17 @@ class Service:
             self.stale += 1
         return fresh
 
-    def record_error(self, kind: str, message: str) -> None:
-        self.last_error = message
-        self._rate_log.warning(kind, message)
+    def record_error(self, kind: str, message: str, exc_info: bool = False) -> None:
+        """Remember and log (at most one line per kind every few seconds) an error; hostile input echoed
+        in `message` is clipped, so it never makes health messages or the log grow."""
+        self.last_error = clip_text(message)
+        self._rate_log.warning(kind, self.last_error, exc_info=exc_info)
 
-    def reject(self, topic_path: str, reason: str, detail: str) -> None:
-        """Count a bad input; the service goes on."""
+    def reject(self, topic_path: str, reason: str, detail: str, exc_info: bool = False) -> None:
+        """Count a bad input with its reason; the service goes on."""
         self.rejected[topic_path] = self.rejected.get(topic_path, 0) + 1
-        self.record_error(f"reject:{topic_path}:{reason}", f"rejected {topic_path}: {reason}: {detail}")
+        self.rejected_by_reason[reason] = self.rejected_by_reason.get(reason, 0) + 1
+        self.record_error(f"reject:{topic_path}:{reason}", f"rejected {topic_path}: {reason}: {detail}", exc_info)
 
     def record_latency(self, duration_ns: int) -> None:
         self._latency.add(duration_ns)
@@ -171,6 +176,7 @@ class Service:
             self.frames_in += 1
             topic = TOPICS[delivery.topic_path]
             try:
+                codec.check_size(len(delivery.payload), topic.max_bytes)  # before copying it
                 message = codec.decode(bytes(delivery.payload), topic.message)
             except codec.DecodeError as exc:
                 self.reject(delivery.topic_path, exc.reason, exc.detail)
@@ -181,9 +187,8 @@ class Service:
             start = time.perf_counter_ns()
             try:
                 self.on_message(topic, message, delivery)
-            except Exception as exc:  # one bad frame must not kill the stage
-                self.log.exception("handling %s failed", delivery.topic_path)
-                self.record_error("handler", f"{type(exc).__name__}: {exc}")
+            except Exception as exc:  # one bad input must not kill the stage, nor flood the log
+                self.reject(delivery.topic_path, "handler_error", f"{type(exc).__name__}: {exc}", exc_info=True)
                 continue
             self.record_latency(time.perf_counter_ns() - start)
 
@@ -198,8 +203,10 @@ class Service:
         p50, p99 = self._latency.percentiles_ms()
         e50, e99 = self._e2e.percentiles_ms()
         detail: dict[str, float | int | str] = {f"rejected.{k}": v for k, v in self.rejected.items()}
+        detail.update({f"reject.{k}": v for k, v in self.rejected_by_reason.items()})
         detail.update({f"published.{k}": v for k, v in self.published.items()})
         detail.update(self.health_detail())
+        detail = {k: clip_text(v) if isinstance(v, str) else v for k, v in detail.items()}
         return Health(
             robot_id=self.robot_id, service=self.name, uptime_s=time.monotonic() - self._started,
             rate_in_hz=self._rate_in.rate(self.frames_in), rate_out_hz=self._rate_out.rate(self.frames_out),

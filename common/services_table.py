@@ -12,6 +12,7 @@ from typing import Literal
 from pydantic import BaseModel
 
 from courtloc.common.control import ModelReply, ModelRequest
+from courtloc.common.limits import MAX_CHUNK_BYTES, MAX_HITS_BYTES, MAX_IMAGE_BYTES, max_payload_bytes
 from courtloc.common.messages import Edges, Frame, GroundTruth, Health, Pose, ShotSolution
 
 ROOT = "courtloc"
@@ -46,6 +47,16 @@ class Topic(_Keyed):
     express: bool
     freshness_ms: float
     doc: str
+
+    @property
+    def max_bytes(self) -> int:
+        """The largest payload a subscriber decodes; bigger ones are rejected as `too_large`."""
+        return max_payload_bytes(_BULK_BYTES.get(self.message, 0))
+
+
+# The one bulk field of a message type, bounded by the contract (common/limits.py); the rest is the envelope.
+_BULK_BYTES: dict[type[BaseModel], int] = {Frame: MAX_IMAGE_BYTES, Edges: MAX_HITS_BYTES,
+                                           ModelRequest: MAX_CHUNK_BYTES}
 
 
 @dataclass(frozen=True)
@@ -116,6 +127,11 @@ class Control(_Keyed):
     callers: tuple[str, ...]
     timeout_s: float
     doc: str
+
+    @property
+    def max_bytes(self) -> int:
+        """The largest request the service decodes; bigger ones are refused as `too_large`."""
+        return max_payload_bytes(_BULK_BYTES.get(self.request, 0))
 
 
 PIT = "pit"

@@ -168,15 +168,18 @@ class InferService(Service):
 
     def _answer(self, query: zenoh.Query) -> None:
         payload = query.payload
+        control = CONTROLS["infer/model"]
         try:
+            codec.check_size(len(payload) if payload is not None else 0, control.max_bytes)  # before copying it
             request = codec.decode(bytes(payload) if payload is not None else b"", ModelRequest)
             reply = self._control.handle(request)
         except codec.DecodeError as exc:
-            self.reject(CONTROLS["infer/model"].path, exc.reason, exc.detail)
+            self.reject(control.path, exc.reason, exc.detail)
             reply = ModelReply(ok=False, reason=f"bad request: {exc}")
         except Exception as exc:  # a control bug must not stop inference
-            self.log.exception("model control failed")
-            reply = ModelReply(ok=False, reason=f"internal error: {type(exc).__name__}: {exc}")
+            # The exception's text may name files of the store: it goes to our log, not to the asker.
+            self.reject(control.path, "handler_error", f"{type(exc).__name__}: {exc}", exc_info=True)
+            reply = ModelReply(ok=False, reason=f"internal error ({type(exc).__name__}); see the infer log")
         try:
             query.reply(query.key_expr, codec.encode(reply))
         except zenoh.ZError as exc:

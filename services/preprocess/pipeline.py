@@ -3,13 +3,14 @@
 The Zenoh service wraps `Preprocessor`; everything here is synchronous and needs no bus, so it can be
 tested and benchmarked alone. Bad input raises `FrameError`, whose `reason` is a
 short stable word the service can count ("dtype", "shape", "channels", "size", "empty", "undecodable",
-"encoding").
+"encoding", "not_jpeg").
 """
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
+from courtloc.common.jpeg_header import NotJpeg, jpeg_size
 from courtloc.services.preprocess.config import PreprocessConfig
 from courtloc.services.preprocess.hsv_mask import WhiteMask
 from courtloc.services.preprocess.radial_scan import HIT_DTYPE, RadialScanner
@@ -46,6 +47,15 @@ def decode_frame(encoding: str, data: bytes, width: int, height: int) -> np.ndar
     if not data:
         raise FrameError("frame payload is empty", reason="empty")
     if encoding == "jpeg":
+        # The declared size is checked before decoding: a tiny file may declare a huge image, and
+        # OpenCV would decode any format it knows (PNG, BMP...) under the name "jpeg".
+        try:
+            declared = jpeg_size(data)
+        except NotJpeg as exc:
+            raise FrameError(f"encoding 'jpeg' but {len(data)} bytes are not a JPEG: {exc}", reason="not_jpeg") from None
+        if declared != (width, height):
+            raise FrameError(f"the JPEG declares {declared[0]}x{declared[1]}, the message {width}x{height}",
+                             reason="size")
         bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
         if bgr is None:
             raise FrameError(f"{len(data)} bytes are not a decodable image", reason="undecodable")

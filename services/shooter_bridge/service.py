@@ -14,6 +14,7 @@ from collections import Counter
 from typing import Optional
 
 from courtloc.common.inbox import Delivery
+from courtloc.common.limits import clip_text
 from courtloc.common.messages import Header, Pose, ShotSolution
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.runtime import Service
@@ -93,7 +94,7 @@ class ShooterBridgeService(Service):
             self._seq += 1
         reason = decision.reason
         if reason == "invalid" and pose is not None and pose.reason:
-            reason = f"invalid:{pose.reason}"  # keep the upstream cause for the operator
+            reason = clip_text(f"invalid:{pose.reason}")  # keep the upstream cause for the operator
         return ShotSolution(header=header,
                             distance_m=decision.distance_m if decision.distance_m is not None else math.nan,
                             bearing_rad=decision.bearing_rad, rpm=decision.rpm,
