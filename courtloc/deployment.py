@@ -36,8 +36,12 @@ class LauncherConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     services: list[str] = Field(default_factory=lambda: list(SERVICES))
     run_router: bool = Field(default=True, description="start an in-process router before the stages")
-    restart_backoff_s: float = Field(default=0.5, gt=0)
+    restart_backoff_s: float = Field(default=0.5, gt=0, description="a stage's first restart delay; doubles")
     restart_backoff_max_s: float = Field(default=5.0, gt=0)
+    restart_healthy_s: float = Field(default=10.0, gt=0, description="a stage up this long is healthy: its "
+                                     "next restart starts from the first delay again")
+    router_restart_backoff_s: float = Field(default=0.1, ge=0, description="the router's first restart delay "
+                                            "(every stage waits on it); doubles up to restart_backoff_s")
 
     @field_validator("services")
     @classmethod

@@ -20,7 +20,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from courtloc.common.config_loader import ConfigError
     from courtloc.deployment import load_deployment
-    from courtloc.launcher import run_up
+    from courtloc.launcher import LaunchError, run_up
 
     try:
         config = load_deployment(args.config)
@@ -34,7 +34,11 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    summary = run_up(config, args.duration, args.summary_json, stop)
+    try:
+        summary = run_up(config, args.duration, args.summary_json, stop)
+    except LaunchError as exc:
+        print(f"courtloc up: {exc}", file=sys.stderr)
+        return 1
     e2e = summary["e2e_latency_ms"]
     print(json.dumps({k: summary[k] for k in ("poses", "solutions", "drops", "rejected", "restarts")}))
     if e2e["n"]:
