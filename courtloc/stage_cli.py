@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_stage(args: argparse.Namespace) -> int:
     from courtloc.common.config_loader import ConfigError
-    from courtloc.deployment import build_stage, load_deployment
+    from courtloc.deployment import build_stage, insecure_exposure, load_deployment, warn_while_insecure
 
     try:
         config = load_deployment(args.config)
@@ -35,6 +35,8 @@ def run_stage(args: argparse.Namespace) -> int:
     except (ConfigError, ValueError) as exc:
         print(exc, file=sys.stderr)
         return 2
+    warn_while_insecure(insecure_exposure(config, config.zenoh.listen, config.zenoh.security is not None),
+                        stage.stop_event, log)
     return stage.run()
 
 
@@ -43,7 +45,7 @@ def run_router(args: argparse.Namespace) -> int:
 
     from courtloc.common.bus import ZenohConfig, build_zenoh_config
     from courtloc.common.config_loader import ConfigError
-    from courtloc.deployment import load_deployment
+    from courtloc.deployment import insecure_exposure, is_loopback, load_deployment, warn_while_insecure
 
     try:
         config = load_deployment(args.config)
@@ -51,6 +53,11 @@ def run_router(args: argparse.Namespace) -> int:
         print(exc, file=sys.stderr)
         return 2
     listen = args.listen or config.router.listen
+    exposed = [ep for ep in listen if not is_loopback(ep)]
+    if exposed and config.router.secure_dir is None and not config.insecure:
+        print(f"router: --listen {', '.join(exposed)} is reachable beyond this machine: set [router] secure_dir "
+              "(courtloc secure init) or insecure = true in the deployment file", file=sys.stderr)
+        return 2
     router_cfg = ZenohConfig(mode="router", connect=config.router.connect, listen=listen,
                              config_file=config.zenoh.config_file)
     stop = threading.Event()
@@ -74,6 +81,7 @@ def run_router(args: argparse.Namespace) -> int:
         return 1
     log.info("router listening on %s", ", ".join(listen))
     print(f"router listening on {', '.join(listen)}", flush=True)
+    warn_while_insecure(insecure_exposure(config, listen, config.router.secure_dir is not None), stop, log)
     try:
         while not stop.wait(0.5):
             pass
