@@ -14,6 +14,7 @@ BENCHES: dict[str, str] = {
     "paper": "courtloc.localizer.model_bench",
     "localize": "courtloc.localizer.bench",
     "soak": "courtloc.bench_soak",
+    "fuzz": "courtloc.bench_fuzz",
     "infer": "courtloc.services.infer.bench",
 }
 
