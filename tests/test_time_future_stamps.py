@@ -108,3 +108,45 @@ heartbeat_s = 0.1
         client.close()
         bridge.stop()
         router.stop()
+
+
+@pytest.mark.integration
+def test_infer_process_never_makes_a_valid_pose_from_future_edges(tmp_path: Path) -> None:
+    """Edges stamped +1000 s: an invalid pose (stale_input), and the next real frame is still tracked."""
+    from infer_models import TwinFrames, bundled_default
+
+    if bundled_default() is None:
+        pytest.skip("no bundled model")
+    truth = (2.0, -1.5, 0.4)
+    frames = TwinFrames([truth])
+    port = free_port()
+    router = start_router(port)
+    config = write_config(tmp_path / "deploy.toml", port, f'[infer]\nstore = "{tmp_path / "store"}"\n')
+    client = BusClient(port)
+    client.subscribe("infer/pose")
+    client.subscribe("infer/health")
+    stage = start_stage("infer", config)
+    try:
+        stage.wait_line("infer running for robot", timeout=60)
+        client.wait_subscribed("preprocess/edges")
+
+        def pose_of(seq: int, ahead_s: float = 0.0) -> Pose:
+            edges = frames.edges(0, seq)
+            if ahead_s:
+                ahead = int(ahead_s * 1e9)
+                edges.header = edges.header.model_copy(update={
+                    "capture_mono_ns": edges.header.capture_mono_ns + ahead,
+                    "capture_wall_ns": edges.header.capture_wall_ns + ahead})
+            client.put_raw("preprocess/edges", codec.encode(edges))
+            return client.wait_for("infer/pose", lambda p: p.header.seq == seq, timeout=20)
+
+        assert pose_of(1).header.valid
+        future = pose_of(2, ahead_s=1000.0)
+        assert not future.header.valid and future.reason == "stale_input"
+        after = pose_of(3)
+        assert after.header.valid and abs(after.x - truth[0]) < 0.5 and abs(after.y - truth[1]) < 0.5
+        assert client.wait_for("infer/health", lambda h: h.stale >= 1).stale >= 1
+    finally:
+        client.close()
+        stage.stop()
+        router.stop()

@@ -104,6 +104,13 @@ class InferService(Service):
             return
         model = self.active  # one read: a swap between frames never splits a frame across two models
         assert model is not None
+        if not fresh:
+            # Old, or stamped in the future: never valid, and its capture time must not reach the
+            # tracker's motion model (a frame "from" +1000 s would poison every later prediction).
+            self.publish("infer/pose", Pose(header=message.header.forwarded(self.name, valid=False), x=0.0, y=0.0,
+                                            model_name=model.ref.name, model_version=model.ref.version,
+                                            infer_ms=0.0, reason="stale_input"))
+            return
         pose = self.make_pose(model, message, hits, fresh=fresh, tracker=self.tracker)
         self.publish("infer/pose", pose)
         shadow = self.shadow
