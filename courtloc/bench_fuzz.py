@@ -59,6 +59,11 @@ class Probe:
     path: str  # a topic path, or the control path "infer/model"
     payload: bytes
     must_not_be_valid: bool = False  # if its seq comes out valid, the chain trusted hostile input
+    # Stamped relative to the moment it is sent (a "+10 s" stamp made once would be fresh 10 s later)
+    restamp: Callable[[], bytes] | None = None
+
+    def bytes_now(self) -> bytes:
+        return self.restamp() if self.restamp is not None else self.payload
 
 
 def _header(robot_id: str, seq: int, ahead_s: float = 0.0, valid: bool = True) -> dict[str, Any]:
@@ -103,7 +108,12 @@ def hostile_catalogue(robot_id: str, captured: dict[str, dict[str, Any]], next_s
     for ahead in (10.0, 1000.0):
         for path, message in (("infer/pose", pose), ("camera/frame", frame), ("preprocess/edges", edges)):
             if message is not None:
-                probes.append(Probe(f"future_{int(ahead)}s:{path}", path, _pack(with_header(message, ahead)[0]), True))
+                stamped, seq = with_header(message, ahead)
+
+                def restamp(m: dict[str, Any] = stamped, a: float = ahead, n: int = seq) -> bytes:
+                    return _pack({**m, "header": _header(robot_id, n, a)})
+
+                probes.append(Probe(f"future_{int(ahead)}s:{path}", path, _pack(stamped), True, restamp))
     # 6. decode bombs and the wrong format under "jpeg"
     frame_fields = {"width": 640, "height": 480, "encoding": "jpeg"}
     probes.append(Probe("decode_bomb", "camera/frame",
@@ -412,9 +422,9 @@ def _fuzz(args: argparse.Namespace, session: zenoh.Session, seen: Observed, up: 
             last_heavy[probe.name] = now
         if probe.path == control.path:
             if "infer" in services:
-                session.get(control.key(robot), lambda _reply: None, payload=probe.payload, timeout=5.0)
+                session.get(control.key(robot), lambda _reply: None, payload=probe.bytes_now(), timeout=5.0)
         elif probe.path in publishers:
-            publishers[probe.path].put(probe.payload)
+            publishers[probe.path].put(probe.bytes_now())
         else:
             continue
         sent[kind] = sent.get(kind, 0) + 1
