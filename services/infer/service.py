@@ -188,9 +188,17 @@ class InferService(Service):
             self.reject(control.path, "handler_error", f"{type(exc).__name__}: {exc}", exc_info=True)
             reply = ModelReply(ok=False, reason=f"internal error ({type(exc).__name__}); see the infer log")
         try:
-            query.reply(query.key_expr, codec.encode(reply))
+            query.reply(query.key_expr, codec.encode(self._without_internals(reply)))
         except zenoh.ZError as exc:
             self.record_error("control", f"cannot answer model request: {exc}")
+
+    def _without_internals(self, reply: ModelReply) -> ModelReply:
+        """The asker learns what went wrong, not where the robot keeps its files: the store's absolute
+        folder becomes `<store>` in any text of the reply."""
+        reason = reply.reason
+        for root in {str(self.store.root.resolve()), str(self.store.root)}:
+            reason = reason.replace(root, "<store>")
+        return reply if reason == reply.reason else reply.model_copy(update={"reason": reason})
 
     # ModelHost, for ModelControl
     def validate(self, stored: StoredModel, pushed: bool = False) -> LoadedModel:
