@@ -97,3 +97,11 @@ def test_router_refuses_an_open_listen_and_nags_when_told_insecure(tmp_path: Pat
         assert f"tcp/0.0.0.0:{port}" in line
     finally:
         router.stop()
+
+
+def test_monitor_refuses_to_serve_beyond_loopback_unless_insecure(tmp_path: Path) -> None:
+    config = tmp_path / "pit.toml"
+    config.write_text('robot_id = "robot1"\n')
+    refused = Proc([*PYTHON, "monitor", "--host", "0.0.0.0", "--port", "0", "--config", str(config)]).start()
+    assert refused.process is not None and refused.process.wait(60) == 2
+    assert "insecure = true" in refused.output() and "Traceback" not in refused.output()

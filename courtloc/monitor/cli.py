@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import signal
 import sys
 import threading
@@ -21,12 +22,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from courtloc.common.config_loader import ConfigError
+    from courtloc.deployment import insecure_exposure, warn_while_insecure
     from courtloc.monitor.app import Monitor
 
     try:
         config = client_deployment(args)
     except (ConfigError, ValueError) as exc:
         print(exc, file=sys.stderr)
+        return 2
+    # Plain HTTP shows the robot's streams to whoever can reach it: beyond loopback only when the
+    # deployment says insecure = true, and then with a warning every minute.
+    exposed = insecure_exposure(config, [f"tcp/{args.host}:{args.port}"], secured=False)
+    if exposed and not config.insecure:
+        print(f"monitor: --host {args.host} serves the robot's data unencrypted beyond this machine; "
+              "set insecure = true in the deployment file to allow it", file=sys.stderr)
         return 2
     if not 1.0 <= args.rate <= 60.0:
         print(f"--rate must be within 1..60, got {args.rate}", file=sys.stderr)
@@ -43,5 +52,6 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     print(f"monitor for {config.robot_id}: {monitor.url}", flush=True)
+    warn_while_insecure(exposed, stop, logging.getLogger("courtloc.monitor"))
     monitor.run(stop)
     return 0
