@@ -136,3 +136,47 @@ services = ["preprocess"]
     assert f"port {port}" in line and f"pid {other.pid}" in line
     assert "Traceback" not in up.output()
     assert seen == []  # no stage of ours ever joined the other pipeline
+
+
+@pytest.mark.integration
+def test_router_killed_under_up_comes_back_each_time_with_the_short_delay(tmp_path: Path) -> None:
+    """Three router kills in a row under a real `courtloc up`: each is relaunched after 0.1, 0.2, 0.4 s
+    (the launcher's decision, logged), not the stages' growing back-off, and the chain flows again."""
+    import os
+    import signal
+
+    from buskit import folder_camera_toml, write_line_frames
+    from courtloc.bench_soak import child_processes
+    from test_resilience_stage_kill import wait_for_router
+
+    port = free_port()
+    config = tmp_path / "up.toml"
+    config.write_text(f"""robot_id = "robot1"
+[zenoh]
+connect = ["{endpoint(port)}"]
+open_retry_s = 0.1
+open_retry_max_s = 0.3
+[router]
+listen = ["{endpoint(port)}"]
+[launcher]
+services = ["camera", "preprocess"]
+restart_backoff_s = 0.5
+restart_healthy_s = 600  # no reset between the kills, however slow this machine is
+{folder_camera_toml(write_line_frames(tmp_path / "frames"))}""")
+    up = Proc([*PYTHON, "up", "--config", str(config)]).start()
+    client = None
+    try:
+        wait_for_router(port)
+        client = BusClient(port, reconnect_max_s=0.3)
+        client.subscribe("preprocess/edges")
+        client.wait_for("preprocess/edges", timeout=60)
+        for kill, delay in enumerate(("0.1", "0.2", "0.4"), start=1):
+            os.kill(child_processes(up.pid)["router"], signal.SIGKILL)
+            line = up.wait_line(f"router exited (code -9); restarting in {delay} s", timeout=30)
+            assert line and len([ln for ln in up.lines if "router exited" in ln]) == kill
+            client.drain("preprocess/edges")
+            client.wait_for("preprocess/edges", timeout=60)  # the chain flows through the new router
+    finally:
+        if client is not None:
+            client.close()
+        up.stop()
