@@ -104,26 +104,28 @@ def hostile_catalogue(robot_id: str, captured: dict[str, dict[str, Any]], next_s
         seq = next_seq()
         return {**message, "header": {**_header(robot_id, seq, ahead_s), **header}}, seq
 
+    def timed(name: str, path: str, message: dict[str, Any], ahead_s: float = 0.0, **header: Any) -> Probe:
+        """A probe whose header is stamped `ahead_s` from the moment it is sent (so only what it is
+        meant to test is wrong with it: a stamp made once would drift out of freshness)."""
+        stamped, seq = with_header(message, ahead_s, **header)
+
+        def restamp() -> bytes:
+            return _pack({**message, "header": {**_header(robot_id, seq, ahead_s), **header}})
+
+        return Probe(name, path, _pack(stamped), True, restamp)
+
     # 4. time: stamps from the future
     for ahead in (10.0, 1000.0):
         for path, message in (("infer/pose", pose), ("camera/frame", frame), ("preprocess/edges", edges)):
             if message is not None:
-                stamped, seq = with_header(message, ahead)
-
-                def restamp(m: dict[str, Any] = stamped, a: float = ahead, n: int = seq) -> bytes:
-                    return _pack({**m, "header": _header(robot_id, n, a)})
-
-                probes.append(Probe(f"future_{int(ahead)}s:{path}", path, _pack(stamped), True, restamp))
+                probes.append(timed(f"future_{int(ahead)}s:{path}", path, message, ahead))
     # 6. decode bombs and the wrong format under "jpeg"
     frame_fields = {"width": 640, "height": 480, "encoding": "jpeg"}
-    probes.append(Probe("decode_bomb", "camera/frame",
-                        _pack(with_header({**frame_fields, "data": _bomb_jpeg()})[0]), True))
-    probes.append(Probe("declared_16000", "camera/frame",
-                        _pack(with_header({"width": 16000, "height": 16000, "encoding": "jpeg",
-                                           "data": _bomb_jpeg()})[0]), True))
+    probes.append(timed("decode_bomb", "camera/frame", {**frame_fields, "data": _bomb_jpeg()}))
+    probes.append(timed("declared_16000", "camera/frame",
+                        {"width": 16000, "height": 16000, "encoding": "jpeg", "data": _bomb_jpeg()}))
     ok, png = cv2.imencode(".png", np.zeros((480, 640, 3), np.uint8))
-    probes.append(Probe("png_as_jpeg", "camera/frame", _pack(with_header({**frame_fields, "data": png.tobytes()})[0]),
-                        True))
+    probes.append(timed("png_as_jpeg", "camera/frame", {**frame_fields, "data": png.tobytes()}))
     # 7. sizes: stamps, hits, chunks, names
     stamp = {"stage": "s", "mono_ns": 0, "wall_ns": 0, "host": "h"}
     flood, _ = with_header({**frame_fields, "data": b""})
@@ -133,7 +135,7 @@ def hostile_catalogue(robot_id: str, captured: dict[str, dict[str, Any]], next_s
                         _pack(with_header({"width": 640, "height": 480, "crop_top": 0, "n_hits": 1_000_000,
                                            "hits": b"\0" * 8_000_000})[0]), True))
     probes.append(Probe("robot_id_5MB", "infer/pose", _pack(with_header(pose, robot_id="r" * 5_000_000)[0]), True))
-    probes.append(Probe("robot_id_1kB", "infer/pose", _pack(with_header(pose, robot_id="r" * 1000)[0]), True))
+    probes.append(timed("robot_id_1kB", "infer/pose", pose, robot_id="r" * 1000))
     probes.append(Probe("chunk_50MB", "infer/model", b"\0" * (50 * 2**20)))
     probes.append(Probe("chunk_over_limit", "infer/model", _pack({"schema_version": 1, "body": {
         "op": "push_chunk", "upload_id": "u", "file_index": 0, "offset": 0, "data": b"\0" * (MAX_CHUNK_BYTES + 1)}})))
@@ -141,12 +143,10 @@ def hostile_catalogue(robot_id: str, captured: dict[str, dict[str, Any]], next_s
         "op": "push_begin", "files": [{"path": "../escape", "size": 1, "sha256": "0" * 64}]}})))
     # 8. inputs that make a handler raise: edges of a frame size the model was not made for
     if edges is not None:
-        probes.append(Probe("edges_wrong_frame_size", "preprocess/edges",
-                            _pack(with_header({**edges, "width": 1, "height": 1})[0]), True))
+        probes.append(timed("edges_wrong_frame_size", "preprocess/edges", {**edges, "width": 1, "height": 1}))
     # 13. coerced fields
-    probes.append(Probe("valid_yes", "infer/pose", _pack(with_header(pose, valid="yes")[0]), True))
-    probes.append(Probe("width_text", "camera/frame", _pack(with_header({**frame_fields, "width": "640",
-                                                                           "data": _bomb_jpeg(8)})[0]), True))
+    probes.append(timed("valid_yes", "infer/pose", pose, valid="yes"))
+    probes.append(timed("width_text", "camera/frame", {**frame_fields, "width": "640", "data": _bomb_jpeg(8)}))
     probes.append(Probe("seq_text", "preprocess/edges", _pack({**(edges or {}), "header": {
         **_header(robot_id, 0), "seq": "640"}}), True))
     probes.append(Probe("noise", "camera/frame", os.urandom(256)))
@@ -179,7 +179,9 @@ def mutate(message: dict[str, Any], robot_id: str, rng: random.Random,
     kind = rng.randrange(5)
     strict = kind == 1 and isinstance(message.get("header"), dict)
     if isinstance(message.get("header"), dict):
-        message["header"]["seq"] = seq_of(strict)
+        # stamped now: a captured message is old by the time it is mutated, and a stale one would stop
+        # at the freshness check instead of reaching the code the mutation is meant for
+        message["header"].update(_header(robot_id, seq_of(strict), valid=bool(message["header"].get("valid"))))
     if kind == 0:  # one field of an unexpected type or value
         path = rng.choice(_leaves(message))
         if path:
