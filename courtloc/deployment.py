@@ -6,8 +6,6 @@ simulated camera, the bundled model.
 from __future__ import annotations
 
 import importlib
-import logging
-import threading
 from pathlib import Path
 from typing import Callable
 
@@ -18,6 +16,7 @@ from courtloc.common.config_loader import load_model, resolve_relative_paths
 from courtloc.common.runtime import Service
 from courtloc.common.security import with_identity
 from courtloc.common.services_table import SERVICES, check_robot_id
+from courtloc.exposure import is_loopback
 from courtloc.services.camera.config import CameraConfig
 from courtloc.services.infer.config import InferConfig
 from courtloc.services.preprocess.config import PreprocessConfig
@@ -54,32 +53,10 @@ class LauncherConfig(BaseModel):
         return names
 
 
-INSECURE_WARNING_PERIOD_S = 60.0
-_LOOPBACK_HOSTS = {"localhost", "::1", "[::1]"}
-
-
-def endpoint_host(endpoint: str) -> str:
-    """The host of a zenoh endpoint `proto/host:port[?...][#...]`."""
-    address = endpoint.split("/", 1)[-1].split("?", 1)[0].split("#", 1)[0]
-    return address.rsplit(":", 1)[0] if ":" in address else address
-
-
-def is_loopback(endpoint: str) -> bool:
-    host = endpoint_host(endpoint)
-    return host in _LOOPBACK_HOSTS or host.startswith("127.")
-
-
-def exposed_endpoints(config: "DeploymentConfig") -> list[str]:
-    """Endpoints this deployment listens on beyond loopback (router, and peers' own listeners)."""
-    return [ep for ep in (*config.router.listen, *config.zenoh.listen) if not is_loopback(ep)]
-
-
 class DeploymentConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     robot_id: str = "robot1"
-    insecure: bool = Field(default=False, description="allow listening beyond loopback without the security "
-                           "bundle (a warning is logged every minute while it does)")
     court: str = Field(default="seed-gazebo", description="the court every stage assumes unless its own "
                        "section names one (sim camera, shooter target)")
     zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
@@ -89,6 +66,8 @@ class DeploymentConfig(BaseModel):
     preprocess: PreprocessConfig = Field(default_factory=PreprocessConfig)
     infer: InferConfig = Field(default_factory=InferConfig)
     shooter_bridge: ShooterConfig = Field(default_factory=ShooterConfig)
+    insecure: bool = Field(default=False, description="allow listening beyond loopback without the security "
+                           "bundle (a warning is logged every minute while it does)")
 
     @model_validator(mode="after")
     def _one_court_by_default(self) -> "DeploymentConfig":
@@ -99,6 +78,11 @@ class DeploymentConfig(BaseModel):
             self.shooter_bridge = self.shooter_bridge.model_copy(
                 update={"target": target.model_copy(update={"court": self.court})})
         return self
+
+    @field_validator("robot_id")
+    @classmethod
+    def _robot_id_is_a_key_chunk(cls, value: str) -> str:
+        return check_robot_id(value)
 
     @model_validator(mode="after")
     def _secure_beyond_loopback(self) -> "DeploymentConfig":
@@ -113,35 +97,6 @@ class DeploymentConfig(BaseModel):
             raise ValueError(f"zenoh.listen {self.zenoh.listen} is reachable beyond this machine without "
                              "[zenoh.security], or set insecure = true")
         return self
-
-    @field_validator("robot_id")
-    @classmethod
-    def _robot_id_is_a_key_chunk(cls, value: str) -> str:
-        return check_robot_id(value)
-
-
-def insecure_exposure(config: DeploymentConfig, listening: list[str], secured: bool) -> list[str]:
-    """Of the endpoints this process listens on, those beyond loopback left open (only `insecure = true`
-    lets a process get this far with any)."""
-    return [] if secured else [ep for ep in listening if not is_loopback(ep)]
-
-
-def warn_while_insecure(exposed: list[str], stop: threading.Event, logger: logging.Logger,
-                        period_s: float = INSECURE_WARNING_PERIOD_S) -> threading.Thread | None:
-    """A warning now and every `period_s` until `stop`, while `exposed` endpoints are open to anyone."""
-    if not exposed:
-        return None
-
-    def nag() -> None:
-        while True:
-            logger.warning("INSECURE: listening on %s without authentication or encryption (insecure = true): "
-                           "anyone on this network can read and drive the robot", ", ".join(exposed))
-            if stop.wait(period_s):
-                return
-
-    thread = threading.Thread(target=nag, name="insecure-warning", daemon=True)
-    thread.start()
-    return thread
 
 
 def load_deployment(path: Path | None) -> DeploymentConfig:

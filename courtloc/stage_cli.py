@@ -27,7 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_stage(args: argparse.Namespace) -> int:
     from courtloc.common.config_loader import ConfigError
-    from courtloc.deployment import build_stage, insecure_exposure, load_deployment, warn_while_insecure
+    from courtloc.deployment import build_stage, load_deployment
+    from courtloc.exposure import insecure_exposure, warn_while_insecure
 
     try:
         config = load_deployment(args.config)
@@ -35,7 +36,7 @@ def run_stage(args: argparse.Namespace) -> int:
     except (ConfigError, ValueError) as exc:
         print(exc, file=sys.stderr)
         return 2
-    warn_while_insecure(insecure_exposure(config, config.zenoh.listen, config.zenoh.security is not None),
+    warn_while_insecure(insecure_exposure(config.zenoh.listen, config.zenoh.security is not None),
                         stage.stop_event, log)
     return stage.run()
 
@@ -45,7 +46,8 @@ def run_router(args: argparse.Namespace) -> int:
 
     from courtloc.common.bus import ZenohConfig, build_zenoh_config
     from courtloc.common.config_loader import ConfigError
-    from courtloc.deployment import insecure_exposure, is_loopback, load_deployment, warn_while_insecure
+    from courtloc.deployment import load_deployment
+    from courtloc.exposure import insecure_exposure, is_loopback, warn_while_insecure
 
     try:
         config = load_deployment(args.config)
@@ -81,7 +83,7 @@ def run_router(args: argparse.Namespace) -> int:
         return 1
     log.info("router listening on %s", ", ".join(listen))
     print(f"router listening on {', '.join(listen)}", flush=True)
-    warn_while_insecure(insecure_exposure(config, listen, config.router.secure_dir is not None), stop, log)
+    warn_while_insecure(insecure_exposure(listen, config.router.secure_dir is not None), stop, log)
     try:
         while not stop.wait(0.5):
             pass

@@ -9,15 +9,15 @@ import pytest
 
 from buskit import PYTHON, Proc, free_port
 from courtloc.common.config_loader import ConfigError
-from courtloc.deployment import (exposed_endpoints, insecure_exposure, is_loopback, load_deployment,
-                                 warn_while_insecure)
+from courtloc.deployment import load_deployment
+from courtloc.exposure import exposed_endpoints, insecure_exposure, is_loopback, warn_while_insecure
 
 PROFILES = Path(__file__).resolve().parents[1] / "deploy" / "configs"
 
 
 def test_shipped_robot_profile_requires_the_bundle() -> None:
     robot = load_deployment(PROFILES / "robot.toml")
-    assert exposed_endpoints(robot), "the robot's router is reachable from the pit"
+    assert exposed_endpoints([*robot.router.listen, *robot.zenoh.listen]), "the robot's router is reachable from the pit"
     assert robot.router.secure_dir is not None and robot.zenoh.security is not None and not robot.insecure
     assert all(ep.startswith("tls/") for ep in (*robot.router.listen, *robot.zenoh.connect))
 
@@ -26,7 +26,7 @@ def test_shipped_robot_profile_requires_the_bundle() -> None:
 def test_no_shipped_profile_listens_beyond_loopback_unsecured(name: str) -> None:
     config = load_deployment(PROFILES / name)
     assert not config.insecure
-    assert not exposed_endpoints(config) or config.router.secure_dir is not None
+    assert not exposed_endpoints([*config.router.listen, *config.zenoh.listen]) or config.router.secure_dir is not None
 
 
 @pytest.mark.parametrize("listen", ["tcp/0.0.0.0:7447", "tcp/192.168.1.10:7447", "tcp/[::]:7447",
@@ -79,7 +79,7 @@ def test_insecure_warning_repeats_until_stopped() -> None:
         logger.removeHandler(handler)
     assert all("INSECURE" in line and "tcp/0.0.0.0:7447" in line for line in seen)
     assert warn_while_insecure([], stop, logger) is None
-    assert insecure_exposure(load_deployment(None), ["tcp/0.0.0.0:1"], secured=True) == []
+    assert insecure_exposure(["tcp/0.0.0.0:1"], secured=True) == []
 
 
 @pytest.mark.integration

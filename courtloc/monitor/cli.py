@@ -22,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from courtloc.common.config_loader import ConfigError
-    from courtloc.deployment import insecure_exposure, warn_while_insecure
+    from courtloc.exposure import insecure_exposure, warn_while_insecure
     from courtloc.monitor.app import Monitor
 
     try:
@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     # Plain HTTP shows the robot's streams to whoever can reach it: beyond loopback only when the
     # deployment says insecure = true, and then with a warning every minute.
-    exposed = insecure_exposure(config, [f"tcp/{args.host}:{args.port}"], secured=False)
+    exposed = insecure_exposure([f"tcp/{args.host}:{args.port}"], secured=False)
     if exposed and not config.insecure:
         print(f"monitor: --host {args.host} serves the robot's data unencrypted beyond this machine; "
               "set insecure = true in the deployment file to allow it", file=sys.stderr)
