@@ -11,6 +11,7 @@ import cv2
 import msgpack
 import numpy as np
 import pytest
+import zenoh
 
 from buskit import BusClient, free_port, start_router, start_stage, write_config
 from courtloc.common import codec
@@ -141,7 +142,9 @@ def test_preprocess_process_counts_every_hostile_frame_by_reason_and_keeps_worki
         client.wait_subscribed("camera/frame")
         for reason, payload in hostile:
             before = client.wait_for("preprocess/health").detail.get(f"reject.{reason}", 0)
-            client.put_raw("camera/frame", payload)
+            # BLOCK: a multi-megabyte payload must not be dropped in transit on a busy machine
+            client.session.put(TOPICS["camera/frame"].key("robot1"), payload,
+                               congestion_control=zenoh.CongestionControl.BLOCK)
             client.wait_for("preprocess/health", lambda h, r=reason, b=before: h.detail.get(f"reject.{r}", 0) > b)
         client.put_raw("camera/frame", _frame_payload())
         edges = client.wait_for("preprocess/edges")
