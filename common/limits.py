@@ -10,7 +10,7 @@ from typing import Annotated
 
 from pydantic import StringConstraints
 
-MAX_NAME_CHARS = 64  # robot ids, stages, models, sources, upload ids
+MAX_NAME_CHARS = 128  # robot ids, stages, sources, upload ids; models (the store allows 128)
 MAX_HOST_CHARS = 255  # a host name (DNS allows 253)
 MAX_TEXT_CHARS = 512  # reasons, errors, free text in health
 MAX_STAMPS = 16  # stage stamps in a header (the chain has 4 stages; relays add a few)
