@@ -1,7 +1,10 @@
 """One msgpack codec for every bus message.
 
 Decoding never raises anything but `DecodeError`, whose `reason` is short and stable so it can be
-counted per topic ("schema_version", "truncated", "invalid", ...).
+counted per topic ("too_large", "schema_version", "truncated", "invalid", ...).
+
+Fields are checked, not coerced (pydantic strict mode): `"yes"` is not a bool and `"640"` not an int;
+a peer that sends the wrong type is refused, not guessed at.
 """
 from __future__ import annotations
 
@@ -21,11 +24,20 @@ class DecodeError(ValueError):
         self.detail = detail
 
 
+def check_size(n_bytes: int, max_bytes: int) -> None:
+    """Refuse a payload bigger than the contract allows, before it is copied or unpacked."""
+    if n_bytes > max_bytes:
+        raise DecodeError("too_large", f"{n_bytes} bytes, the limit is {max_bytes}")
+
+
 def encode(message: BaseModel) -> bytes:
     return msgpack.packb(message.model_dump(), use_bin_type=True)
 
 
-def decode(payload: bytes | bytearray | memoryview, message_type: type[M]) -> M:
+def decode(payload: bytes | bytearray | memoryview, message_type: type[M], max_bytes: int | None = None) -> M:
+    """`payload` as `message_type`; with `max_bytes`, a bigger payload is refused before it is unpacked."""
+    if max_bytes is not None:
+        check_size(len(payload), max_bytes)
     try:
         raw: Any = msgpack.unpackb(payload, raw=False, strict_map_key=True)
     except (msgpack.ExtraData, ValueError, msgpack.UnpackException) as exc:
@@ -41,7 +53,7 @@ def decode(payload: bytes | bytearray | memoryview, message_type: type[M]) -> M:
     if version != SCHEMA_VERSION:
         raise DecodeError("schema_version", f"got {version!r}, this build speaks {SCHEMA_VERSION}")
     try:
-        return message_type.model_validate(raw)
+        return message_type.model_validate(raw, strict=True)
     except ValidationError as exc:
         first = exc.errors()[0]
         where = ".".join(str(p) for p in first["loc"])

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, Optional, Union
 
+from courtloc.common.limits import MAX_CHUNK_BYTES, MAX_NAME_CHARS, MAX_UPLOAD_FILES, Name
 from courtloc.common.messages import SCHEMA_VERSION
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -17,27 +18,27 @@ class _Msg(BaseModel):
 
 class FileSpec(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    path: str = Field(pattern=r"^[A-Za-z0-9_.-]+$", description="a plain file name inside the model folder")
+    path: str = Field(pattern=r"^[A-Za-z0-9_.-]+$", max_length=MAX_NAME_CHARS, description="a plain file name inside the model folder")
     size: int = Field(ge=0)
     sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
 
 
 class PushBegin(_Msg):
     op: Literal["push_begin"] = "push_begin"
-    files: list[FileSpec] = Field(min_length=1)
+    files: list[FileSpec] = Field(min_length=1, max_length=MAX_UPLOAD_FILES)
 
 
 class PushChunk(_Msg):
     op: Literal["push_chunk"] = "push_chunk"
-    upload_id: str
+    upload_id: Name
     file_index: int = Field(ge=0)
     offset: int = Field(ge=0)
-    data: bytes
+    data: bytes = Field(max_length=MAX_CHUNK_BYTES)
 
 
 class PushCommit(_Msg):
     op: Literal["push_commit"] = "push_commit"
-    upload_id: str
+    upload_id: Name
     activate: bool = True
 
 
@@ -47,7 +48,7 @@ class ListModels(_Msg):
 
 class Activate(_Msg):
     op: Literal["activate"] = "activate"
-    name: Optional[str] = None  # default: the active model's name
+    name: Optional[Name] = None  # default: the active model's name
     version: int = Field(ge=1)
 
 
@@ -57,7 +58,7 @@ class Rollback(_Msg):
 
 class Shadow(_Msg):
     op: Literal["shadow"] = "shadow"
-    name: Optional[str] = None
+    name: Optional[Name] = None
     version: Optional[int] = Field(default=None, ge=1, description="None stops shadow mode")
 
 

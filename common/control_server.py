@@ -25,7 +25,7 @@ Handler = Callable[[Control, BaseModel], BaseModel]
 
 class ControlServer:
     def __init__(self, session: zenoh.Session, controls: list[Control], robot_id: str, handler: Handler,
-                 reject: Callable[[str, str, str], None], record_error: Callable[[str, str], None],
+                 reject: Callable[..., None], record_error: Callable[[str, str], None],
                  stop: threading.Event, thread_name: str) -> None:
         self._handler = handler
         self._reject = reject
@@ -59,14 +59,17 @@ class ControlServer:
     def _answer(self, control: Control, query: zenoh.Query) -> None:
         payload = query.payload
         try:
+            codec.check_size(len(payload) if payload is not None else 0, control.max_bytes)  # before copying it
             request = codec.decode(bytes(payload) if payload is not None else b"", control.request)
             reply = self._handler(control, request)
         except codec.DecodeError as exc:
             self._reject(control.path, exc.reason, exc.detail)
             reply = control.reply(ok=False, reason=f"bad request: {exc}")
         except Exception as exc:  # a control bug must not stop the stage
-            log.exception("%s failed", control.path)
-            reply = control.reply(ok=False, reason=f"internal error: {type(exc).__name__}: {exc}")
+            # The exception's text may name files of the stage: it goes to our log, not to the asker.
+            self._reject(control.path, "handler_error", f"{type(exc).__name__}: {exc}", exc_info=True)
+            reply = control.reply(ok=False, reason=f"internal error ({type(exc).__name__}); see the "
+                                                   f"{control.service} log")
         try:
             query.reply(query.key_expr, codec.encode(reply))
         except zenoh.ZError as exc:

@@ -11,10 +11,28 @@ import socket
 import time
 from typing import Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field
+from courtloc.common.limits import (
+    MAX_DETAIL_ENTRIES,
+    MAX_HITS,
+    MAX_HITS_BYTES,
+    MAX_IMAGE_BYTES,
+    MAX_IMAGE_PIXELS,
+    MAX_IMAGE_SIDE,
+    MAX_STAMPS,
+    HostName,
+    Name,
+    Text,
+)
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 SCHEMA_VERSION = 1
 HOST = socket.gethostname()
+
+# Time is data: an age below zero means a stamp from the future, which is as untrustworthy as an old one.
+# On one host both stamps come from the same monotonic clock, so nothing legitimate is in the future.
+# Across hosts ages are wall-clock differences: the hosts' clocks must agree within this bound
+# (chrony, the robot serving time; docs/deployment.md "Clocks"), and a stamp further ahead is stale.
+CLOCK_OFFSET_TOLERANCE_NS = 20_000_000
 
 
 class Strict(BaseModel):
@@ -24,21 +42,21 @@ class Strict(BaseModel):
 
 
 class StageStamp(Strict):
-    stage: str
+    stage: Name
     mono_ns: int
     wall_ns: int
-    host: str = HOST
+    host: HostName = HOST
 
 
 class Header(Strict):
     schema_version: int = SCHEMA_VERSION
-    robot_id: str
+    robot_id: Name
     seq: int = Field(ge=0)
     capture_mono_ns: int
     capture_wall_ns: int
-    capture_host: str = HOST
+    capture_host: HostName = HOST
     valid: bool = False
-    stamps: list[StageStamp] = Field(default_factory=list)
+    stamps: list[StageStamp] = Field(default_factory=list, max_length=MAX_STAMPS)
 
     @classmethod
     def now(cls, robot_id: str, seq: int, stage: str) -> "Header":
@@ -52,10 +70,20 @@ class Header(Strict):
         return self.model_copy(update={"valid": valid, "stamps": [*self.stamps, stamp]})
 
     def age_ns(self) -> int:
-        """Time since capture: monotonic clock on the capturing host, wall clock across hosts."""
+        """Time since capture: monotonic clock on the capturing host, wall clock across hosts.
+
+        Negative for a stamp from the future; use `is_fresh` to judge it."""
         if self.capture_host == HOST:
             return time.monotonic_ns() - self.capture_mono_ns
         return time.time_ns() - self.capture_wall_ns
+
+    def future_tolerance_ns(self) -> int:
+        """How far ahead of our clock this header's capture stamp may be (clock offset between hosts)."""
+        return 0 if self.capture_host == HOST else CLOCK_OFFSET_TOLERANCE_NS
+
+    def is_fresh(self, budget_ns: float) -> bool:
+        """Captured at most `budget_ns` ago and not from the future (beyond the clocks' tolerance)."""
+        return age_is_fresh(self.age_ns(), budget_ns, self.future_tolerance_ns())
 
     def span_ns(self) -> int:
         """Capture to the latest stamp (end-to-end latency when read by the last stage)."""
@@ -67,14 +95,30 @@ class Header(Strict):
         return last.wall_ns - self.capture_wall_ns
 
 
-class Frame(Strict):
+def age_is_fresh(age_ns: float, budget_ns: float, future_tolerance_ns: float) -> bool:
+    """The one freshness rule: -tolerance <= age <= budget (NaN is never fresh)."""
+    return -future_tolerance_ns <= age_ns <= budget_ns
+
+
+class _Image(Strict):
+    """A declared image size, bounded by the contract before any pixel is looked at."""
+
+    width: int = Field(gt=0, le=MAX_IMAGE_SIDE)
+    height: int = Field(gt=0, le=MAX_IMAGE_SIDE)
+
+    @model_validator(mode="after")
+    def _bounded_area(self) -> "_Image":
+        if self.width * self.height > MAX_IMAGE_PIXELS:
+            raise ValueError(f"{self.width}x{self.height} is more than {MAX_IMAGE_PIXELS} pixels")
+        return self
+
+
+class Frame(_Image):
     """A camera image. `encoding` is 'bgr8' (raw, shape height x width x 3) or 'jpeg'."""
 
     header: Header
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
     encoding: Literal["bgr8", "jpeg"]
-    data: bytes
+    data: bytes = Field(max_length=MAX_IMAGE_BYTES)
 
 
 class GroundTruth(Strict):
@@ -84,18 +128,16 @@ class GroundTruth(Strict):
     x: float
     y: float
     yaw: float
-    source: str
+    source: Name
 
 
-class Edges(Strict):
+class Edges(_Image):
     """Radial-scan hits: int16 rows of (row, col, ray, d) in full-frame pixels, packed little-endian."""
 
     header: Header
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
-    crop_top: int = Field(ge=0)
-    n_hits: int = Field(ge=0)
-    hits: bytes
+    crop_top: int = Field(ge=0, le=MAX_IMAGE_SIDE)
+    n_hits: int = Field(ge=0, le=MAX_HITS)
+    hits: bytes = Field(max_length=MAX_HITS_BYTES)
 
 
 class Pose(Strict):
@@ -104,10 +146,10 @@ class Pose(Strict):
     y: float
     yaw: Optional[float] = None
     quality: float = 0.0
-    model_name: str
+    model_name: Name
     model_version: int
     infer_ms: float
-    reason: str = ""
+    reason: Text = ""
 
 
 class ShotSolution(Strict):
@@ -116,15 +158,15 @@ class ShotSolution(Strict):
     bearing_rad: Optional[float] = None
     rpm: float
     command: Literal["SET_RPM", "HOLD"]
-    reason: str = ""
+    reason: Text = ""
 
 
 class Health(Strict):
     """Published once a second by every service."""
 
     schema_version: int = SCHEMA_VERSION
-    robot_id: str
-    service: str
+    robot_id: Name
+    service: Name
     pid: int = Field(default_factory=os.getpid)
     wall_ns: int = Field(default_factory=time.time_ns)
     uptime_s: float
@@ -139,5 +181,5 @@ class Health(Strict):
     latency_ms_p99: float
     e2e_ms_p50: float = 0.0
     e2e_ms_p99: float = 0.0
-    last_error: str = ""
-    detail: dict[str, float | int | str] = Field(default_factory=dict)
+    last_error: Text = ""
+    detail: dict[Name, float | int | Text] = Field(default_factory=dict, max_length=MAX_DETAIL_ENTRIES)

@@ -2,12 +2,13 @@
 
 Every stage and tool that reads a `Frame` or an `Edges` payload goes through here, so the byte layout
 is written down once. Bad input raises `FrameError`, whose `reason` is a short stable word a service
-counts ("dtype", "shape", "channels", "size", "empty", "undecodable", "encoding").
+counts ("dtype", "shape", "channels", "size", "empty", "undecodable", "encoding", "not_jpeg").
 """
 from __future__ import annotations
 
 import cv2
 import numpy as np
+from courtloc.common.jpeg_header import NotJpeg, jpeg_size
 from courtloc.common.messages import Edges, Frame
 
 # A hit is (row, col, ray, d); int16 bounds every frame we accept (checked where hits are made).
@@ -46,6 +47,15 @@ def decode_frame(encoding: str, data: bytes, width: int, height: int) -> np.ndar
     if not data:
         raise FrameError("frame payload is empty", reason="empty")
     if encoding == "jpeg":
+        # The declared size is checked before decoding: a tiny file may declare a huge image, and
+        # OpenCV would decode any format it knows (PNG, BMP...) under the name "jpeg".
+        try:
+            declared = jpeg_size(data)
+        except NotJpeg as exc:
+            raise FrameError(f"encoding 'jpeg' but {len(data)} bytes are not a JPEG: {exc}", reason="not_jpeg") from None
+        if declared != (width, height):
+            raise FrameError(f"the JPEG declares {declared[0]}x{declared[1]}, the message {width}x{height}",
+                             reason="size")
         bgr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
         if bgr is None:
             raise FrameError(f"{len(data)} bytes are not a decodable image", reason="undecodable")

@@ -19,6 +19,7 @@ from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, declare_publisher, open_session
 from courtloc.common.control_server import ControlServer
 from courtloc.common.inbox import Delivery, LatestInbox
+from courtloc.common.limits import clip_text
 from courtloc.common.messages import Header, Health
 from courtloc.common.services_table import CONTROLS, HEALTH_TOPICS, SERVICES, TOPICS, Control, Topic, liveliness_key
 from courtloc.common.signals import stop_on_signals
@@ -48,7 +49,8 @@ class Service:
         self.frames_out = 0
         self.stale = 0
         self.extra_dropped = 0
-        self.rejected: dict[str, int] = {}
+        self.rejected: dict[str, int] = {}  # per input topic
+        self.rejected_by_reason: dict[str, int] = {}
         self.published: dict[str, int] = {}
         self.last_error = ""
         self._latency = LatencyWindow()
@@ -87,20 +89,23 @@ class Service:
             self._e2e.add(header.span_ns())
 
     def is_fresh(self, header: Header, topic: Topic) -> bool:
-        """Counts and reports stale inputs: older than the table's freshness budget."""
-        fresh = header.age_ns() <= topic.freshness_ms * 1e6
+        """Counts and reports stale inputs: older than the table's freshness budget, or from the future."""
+        fresh = header.is_fresh(topic.freshness_ms * 1e6)
         if not fresh:
             self.stale += 1
         return fresh
 
-    def record_error(self, kind: str, message: str) -> None:
-        self.last_error = message
-        self._rate_log.warning(kind, message)
+    def record_error(self, kind: str, message: str, exc_info: bool = False) -> None:
+        """Remember and log (at most one line per kind every few seconds) an error; hostile input echoed
+        in `message` is clipped, so it never makes health messages or the log grow."""
+        self.last_error = clip_text(message)
+        self._rate_log.warning(kind, self.last_error, exc_info=exc_info)
 
-    def reject(self, topic_path: str, reason: str, detail: str) -> None:
-        """Count a bad input; the service goes on."""
+    def reject(self, topic_path: str, reason: str, detail: str, exc_info: bool = False) -> None:
+        """Count a bad input with its reason; the service goes on."""
         self.rejected[topic_path] = self.rejected.get(topic_path, 0) + 1
-        self.record_error(f"reject:{topic_path}:{reason}", f"rejected {topic_path}: {reason}: {detail}")
+        self.rejected_by_reason[reason] = self.rejected_by_reason.get(reason, 0) + 1
+        self.record_error(f"reject:{topic_path}:{reason}", f"rejected {topic_path}: {reason}: {detail}", exc_info)
 
     def record_latency(self, duration_ns: int) -> None:
         self._latency.add(duration_ns)
@@ -181,6 +186,7 @@ class Service:
             self.frames_in += 1
             topic = TOPICS[delivery.topic_path]
             try:
+                codec.check_size(len(delivery.payload), topic.max_bytes)  # before copying it
                 message = codec.decode(bytes(delivery.payload), topic.message)
             except codec.DecodeError as exc:
                 self.reject(delivery.topic_path, exc.reason, exc.detail)
@@ -191,9 +197,8 @@ class Service:
             start = time.perf_counter_ns()
             try:
                 self.on_message(topic, message, delivery)
-            except Exception as exc:  # one bad frame must not kill the stage
-                self.log.exception("handling %s failed", delivery.topic_path)
-                self.record_error("handler", f"{type(exc).__name__}: {exc}")
+            except Exception as exc:  # one bad input must not kill the stage, nor flood the log
+                self.reject(delivery.topic_path, "handler_error", f"{type(exc).__name__}: {exc}", exc_info=True)
                 continue
             self.record_latency(time.perf_counter_ns() - start)
 
@@ -208,8 +213,10 @@ class Service:
         p50, p99 = self._latency.percentiles_ms()
         e50, e99 = self._e2e.percentiles_ms()
         detail: dict[str, float | int | str] = {f"rejected.{k}": v for k, v in self.rejected.items()}
+        detail.update({f"reject.{k}": v for k, v in self.rejected_by_reason.items()})
         detail.update({f"published.{k}": v for k, v in self.published.items()})
         detail.update(self.health_detail())
+        detail = {k: clip_text(v) if isinstance(v, str) else v for k, v in detail.items()}
         return Health(
             robot_id=self.robot_id, service=self.name, uptime_s=time.monotonic() - self._started,
             rate_in_hz=self._rate_in.rate(self.frames_in), rate_out_hz=self._rate_out.rate(self.frames_out),

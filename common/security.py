@@ -4,11 +4,16 @@ A bundle is a folder copied to one machine: `robot/` for the Jetson (router cert
 dictionary, one identity per stage, the model-verifying public key) and `pit/` for the laptop (the
 pit identity and the model-signing private key). Both hold the team's CA certificate.
 
+On the robot the bundle stays root-only on disk; systemd hands each unit only its own identity
+(`LoadCredential=` in deploy/systemd) in a private folder named by `$CREDENTIALS_DIRECTORY`. When that
+variable is set, a process reads its credentials from there (one identity, flat) and nothing else.
+
 This module only knows paths and how they become zenoh settings; making keys is
 `courtloc.security`'s job (it needs the `cryptography` library, which a stage does not load).
 """
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -83,6 +88,18 @@ class BundleLayout:
         return self.root / "model_signing.key"
 
 
+SYSTEMD_CREDENTIALS_ENV = "CREDENTIALS_DIRECTORY"
+# The flat names of one process's credentials in $CREDENTIALS_DIRECTORY (deploy/systemd loads exactly these).
+CLIENT_CREDENTIALS = ("ca.pem", "cert.pem", "key.pem", "user", "password")
+ROUTER_CREDENTIALS = ("ca.pem", "cert.pem", "key.pem", "users.txt")
+
+
+def systemd_credentials() -> Path | None:
+    """The folder systemd loaded this unit's own credentials into, when it did."""
+    folder = os.environ.get(SYSTEMD_CREDENTIALS_ENV)
+    return Path(folder) if folder else None
+
+
 def principal(robot_id: str, identity: str) -> str:
     """The certificate common name and the user name of `identity` on `robot_id`'s bus."""
     return f"{robot_id}-{identity}"
@@ -113,26 +130,38 @@ def with_identity(security: SecurityConfig | None, identity: str) -> SecurityCon
 
 def client_settings(security: SecurityConfig) -> dict[str, Any]:
     """Zenoh config entries (path -> value) for a client presenting `security.identity`."""
-    bundle = BundleLayout(security.dir)
-    name = security.identity
+    own = systemd_credentials()
+    if own is not None:  # this unit's identity only, whatever the bundle folder says
+        ca, cert, key, user, password = (own / name for name in CLIENT_CREDENTIALS)
+    else:
+        bundle = BundleLayout(security.dir)
+        name = security.identity
+        ca, cert, key = bundle.ca_certificate, bundle.certificate(name), bundle.private_key(name)
+        user, password = bundle.user_file(name), bundle.password_file(name)
     return {
-        "transport/link/tls/root_ca_certificate": _existing(bundle.ca_certificate),
-        "transport/link/tls/connect_certificate": _existing(bundle.certificate(name)),
-        "transport/link/tls/connect_private_key": _existing(bundle.private_key(name)),
+        "transport/link/tls/root_ca_certificate": _existing(ca),
+        "transport/link/tls/connect_certificate": _existing(cert),
+        "transport/link/tls/connect_private_key": _existing(key),
         "transport/link/tls/enable_mtls": True,
-        "transport/auth/usrpwd/user": _read(bundle.user_file(name)),
-        "transport/auth/usrpwd/password": _read(bundle.password_file(name)),
+        "transport/auth/usrpwd/user": _read(user),
+        "transport/auth/usrpwd/password": _read(password),
     }
 
 
 def router_settings(bundle_dir: Path) -> dict[str, Any]:
     """Zenoh config entries for the robot's router: TLS only, client certificates and passwords required."""
-    bundle = BundleLayout(bundle_dir)
+    own = systemd_credentials()
+    if own is not None:  # the router unit's own credentials only
+        ca, cert, key, users = (own / name for name in ROUTER_CREDENTIALS)
+    else:
+        bundle = BundleLayout(bundle_dir)
+        ca, cert, key = bundle.ca_certificate, bundle.router_certificate, bundle.router_private_key
+        users = bundle.users_dictionary
     return {
         "transport/link/protocols": ["tls"],
-        "transport/link/tls/root_ca_certificate": _existing(bundle.ca_certificate),
-        "transport/link/tls/listen_certificate": _existing(bundle.router_certificate),
-        "transport/link/tls/listen_private_key": _existing(bundle.router_private_key),
+        "transport/link/tls/root_ca_certificate": _existing(ca),
+        "transport/link/tls/listen_certificate": _existing(cert),
+        "transport/link/tls/listen_private_key": _existing(key),
         "transport/link/tls/enable_mtls": True,
-        "transport/auth/usrpwd/dictionary_file": _existing(bundle.users_dictionary),
+        "transport/auth/usrpwd/dictionary_file": _existing(users),
     }

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from courtloc.common.control import ModelReply, ModelRequest
+from courtloc.common.limits import MAX_CHUNK_BYTES, MAX_HITS_BYTES, MAX_IMAGE_BYTES, max_payload_bytes
 from courtloc.common.messages import Edges, Frame, GroundTruth, Health, Pose, ShotSolution
 from pydantic import BaseModel
 
@@ -45,6 +46,16 @@ class Topic(_Keyed):
     express: bool
     freshness_ms: float
     doc: str
+
+    @property
+    def max_bytes(self) -> int:
+        """The largest payload a subscriber decodes; bigger ones are rejected as `too_large`."""
+        return max_payload_bytes(_BULK_BYTES.get(self.message, 0))
+
+
+# The one bulk field of a message type, bounded by the contract (common/limits.py); the rest is the envelope.
+_BULK_BYTES: dict[type[BaseModel], int] = {Frame: MAX_IMAGE_BYTES, Edges: MAX_HITS_BYTES,
+                                           ModelRequest: MAX_CHUNK_BYTES}
 
 
 @dataclass(frozen=True)
@@ -116,6 +127,11 @@ class Control(_Keyed):
     timeout_s: float
     doc: str
 
+    @property
+    def max_bytes(self) -> int:
+        """The largest request the service decodes; bigger ones are refused as `too_large`."""
+        return max_payload_bytes(_BULK_BYTES.get(self.request, 0))
+
 
 PIT = "pit"
 
@@ -145,6 +161,10 @@ def all_liveliness_key(robot_id: str) -> str:
 
 def service_of_liveliness_key(key: str) -> str:
     return key.split("/")[2]
+
+
+def all_health_key(robot_id: str) -> str:
+    return key_of(robot_id, "*/health")
 
 
 def robot_wildcard_key(robot_id: str) -> str:

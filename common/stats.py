@@ -59,7 +59,9 @@ class RateLimitedLog:
         self._suppressed: dict[str, int] = {}
         self._lock = threading.Lock()
 
-    def warning(self, kind: str, message: str) -> None:
+    def warning(self, kind: str, message: str, exc_info: bool = False) -> None:
+        """`exc_info`: add the current exception's traceback to the first line of this kind (later
+        reports of the same kind repeat the message, not the stack)."""
         now = time.monotonic()
         with self._lock:
             last = self._last.get(kind)
@@ -67,6 +69,7 @@ class RateLimitedLog:
                 self._suppressed[kind] = self._suppressed.get(kind, 0) + 1
                 return
             suppressed = self._suppressed.pop(kind, 0)
+            first = last is None
             self._last[kind] = now
         extra = f" ({suppressed} more since last report)" if suppressed else ""
-        self._logger.warning("%s%s", message, extra)
+        self._logger.warning("%s%s", message, extra, exc_info=exc_info and first)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 from types import ModuleType
 
-from courtloc import bench_pipeline, bench_soak
+from courtloc import bench_fuzz, bench_pipeline, bench_soak
 from courtloc.lab import bench_infer, bench_localize, bench_preprocess, model_bench
 from courtloc.sim import bench_render
 
@@ -18,6 +18,7 @@ BENCHES: dict[str, ModuleType] = {
     "paper": model_bench,
     "localize": bench_localize,
     "soak": bench_soak,
+    "fuzz": bench_fuzz,
     "infer": bench_infer,
 }
 

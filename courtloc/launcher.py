@@ -1,7 +1,11 @@
 """`courtloc up`: a router and every configured stage as separate OS processes, supervised.
 
-The launcher restarts a stage that dies (with back-off), watches the bus as a client to print one
-live status line, and writes a JSON summary on exit.
+The launcher restarts a stage that dies (with back-off that resets once the stage has run healthily
+for a while; the router with a short one, since every stage waits on it), watches the bus as a client
+to print one live status line, and writes a JSON summary on exit.
+
+It refuses to start when its router cannot listen (the port is taken, e.g. by another pipeline):
+stages started anyway would join that pipeline's router under the same robot id and mix its data.
 """
 from __future__ import annotations
 
@@ -17,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, TextIO
 
+from courtloc.port_holder import endpoint_port, port_holder
 from courtloc.services.deployment import DeploymentConfig
 from courtloc.stage_cli import stage_argv
 from courtloc.watch import BusWatcher
@@ -24,28 +29,42 @@ from courtloc.watch import BusWatcher
 log = logging.getLogger("courtloc.launcher")
 
 
+class LaunchError(RuntimeError):
+    """The pipeline cannot start as configured; the message says why in one line."""
+
+
 @dataclass
 class Child:
     name: str
     argv: list[str]
     backoff_s: float
+    backoff_max_s: float = 5.0
     process: subprocess.Popen | None = None
     restarts: int = 0
     next_start: float = 0.0
+    started_at: float = 0.0
     log_path: Path | None = None
 
     ready_line: str | None = None
     ready: threading.Event = field(default_factory=threading.Event)
+    settled: threading.Event = field(default_factory=threading.Event)  # ready, or the output ended
+    last_line: str = ""
 
-    def start(self, log_dir: Path) -> None:
+    def __post_init__(self) -> None:
+        self.initial_backoff_s = self.backoff_s
+
+    def start(self, log_dir: Path, now: float | None = None) -> None:
         self.log_path = log_dir / f"{self.name}.log"
+        self.started_at = time.monotonic() if now is None else now
         self.ready.clear()
+        self.settled.clear()
         handle = self.log_path.open("ab")
         if self.ready_line is None:
             self.process = subprocess.Popen(self.argv, stdout=handle, stderr=subprocess.STDOUT,
                                             stdin=subprocess.DEVNULL)
             handle.close()
             self.ready.set()
+            self.settled.set()
             return
         self.process = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                         stdin=subprocess.DEVNULL)
@@ -58,8 +77,12 @@ class Child:
             for line in self.process.stdout:
                 handle.write(line)
                 handle.flush()
+                if line.strip():
+                    self.last_line = line.decode(errors="replace").strip()
                 if self.ready_line is not None and self.ready_line.encode() in line:
                     self.ready.set()
+                    self.settled.set()
+        self.settled.set()
 
     def alive(self) -> bool:
         return self.process is not None and self.process.poll() is None
@@ -85,38 +108,63 @@ class Supervisor:
 
     def __post_init__(self) -> None:
         python = [sys.executable, "-m", "courtloc"]
-        backoff = self.config.launcher.restart_backoff_s
-        if self.config.launcher.run_router:
+        launcher = self.config.launcher
+        if launcher.run_router:
             listen = [a for ep in self.config.router.listen for a in ("--listen", ep)]
             self.children.append(Child("router", [*python, "router", *listen, "--config", str(self.config_path)],
-                                       backoff, ready_line="router listening"))
-        for name in self.config.launcher.services:
-            self.children.append(Child(name, stage_argv(name, self.config_path), backoff))
+                                       launcher.router_restart_backoff_s, launcher.restart_backoff_s,
+                                       ready_line="router listening"))
+        for name in launcher.services:
+            self.children.append(Child(name, stage_argv(name, self.config_path),
+                                       launcher.restart_backoff_s, launcher.restart_backoff_max_s))
 
     def start_all(self, ready_timeout_s: float = 15.0) -> None:
-        """The router first: stages started after it is listening connect at once."""
+        """The router first: stages started after it is listening connect at once. A router that does
+        not come up stops the launch (LaunchError): nothing else is started."""
         for child in self.children:
             child.start(self.log_dir)
-            if not child.ready.wait(ready_timeout_s):
-                log.warning("%s not ready after %.0f s (see %s); starting the rest anyway", child.name,
-                            ready_timeout_s, child.log_path)
+            child.settled.wait(ready_timeout_s)
+            if child.ready.is_set():
+                continue
+            if child.name == "router":
+                child.stop(timeout=2.0)
+                raise LaunchError(self._router_failure(child, ready_timeout_s))
+            log.warning("%s not ready after %.0f s (see %s)", child.name, ready_timeout_s, child.log_path)
 
-    def check(self) -> None:
-        """Restart dead children, with exponential back-off per child."""
-        now = time.monotonic()
+    def _router_failure(self, child: Child, waited_s: float) -> str:
+        why = child.last_line or f"not listening after {waited_s:.0f} s"
+        holders = []
+        for endpoint in self.config.router.listen:
+            port = endpoint_port(endpoint)
+            holder = port_holder(port) if port is not None else None
+            if holder is not None:
+                holders.append(f"port {port} is held by {holder}")
+        return (f"router cannot listen on {', '.join(self.config.router.listen)}: "
+                f"{'; '.join(holders) or why}; not starting the stages (they would join whatever "
+                f"router answers there; set [launcher] run_router = false to join an existing one)")
+
+    def check(self, now: float | None = None) -> None:
+        """Restart dead children with exponential back-off per child; a child that has run for
+        `restart_healthy_s` is healthy again and its next restart starts from the first delay."""
+        now = time.monotonic() if now is None else now
+        healthy_s = self.config.launcher.restart_healthy_s
         for child in self.children:
             if child.alive():
+                if child.backoff_s != child.initial_backoff_s and now - child.started_at >= healthy_s:
+                    child.backoff_s = child.initial_backoff_s
                 continue
             if child.next_start == 0.0:
                 code = child.process.returncode if child.process else None
+                if now - child.started_at >= healthy_s:  # it ran healthily until it died
+                    child.backoff_s = child.initial_backoff_s
                 log.warning("%s exited (code %s); restarting in %.1f s (see %s)", child.name, code,
                             child.backoff_s, child.log_path)
                 child.next_start = now + child.backoff_s
-            elif now >= child.next_start:
+            if now >= child.next_start:
                 child.restarts += 1
-                child.start(self.log_dir)
+                child.start(self.log_dir, now)
                 child.next_start = 0.0
-                child.backoff_s = min(child.backoff_s * 2, self.config.launcher.restart_backoff_max_s)
+                child.backoff_s = min(child.backoff_s * 2, child.backoff_max_s)
 
     def stop_all(self) -> None:
         # Stages first, so none of them sees its router vanish while shutting down.
@@ -141,14 +189,18 @@ def run_up(config: DeploymentConfig, duration_s: float | None, summary_path: Pat
         log_dir = Path(os.environ.get("COURTLOC_LOG_DIR", folder))
         log_dir.mkdir(parents=True, exist_ok=True)
         supervisor = Supervisor(config, write_effective_config(config, folder), log_dir)
+        try:
+            supervisor.start_all()
+        except LaunchError:
+            supervisor.stop_all()
+            raise
         watcher = BusWatcher(config)
-        supervisor.start_all()
         watcher.start(stop)
         started = time.monotonic()
         live = status_stream.isatty()
         last_status = 0.0
         try:
-            while not stop.wait(0.25):
+            while not stop.wait(0.1):  # a dead router is noticed (and restarted) within this
                 supervisor.check()
                 now = time.monotonic()
                 if live:

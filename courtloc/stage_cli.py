@@ -12,6 +12,7 @@ import zenoh
 
 from courtloc.cli_errors import RUN_EXIT, UsageError
 from courtloc.common.bus import ZenohConfig, build_zenoh_config
+from courtloc.common.exposure import insecure_exposure, is_loopback, warn_while_insecure
 from courtloc.common.security import router_settings
 from courtloc.common.services_table import SERVICES
 from courtloc.common.signals import stop_on_signals
@@ -58,6 +59,11 @@ def run_stage(args: argparse.Namespace) -> int:
 def run_router(args: argparse.Namespace) -> int:
     config = load_deployment(args.config)
     listen = args.listen or config.router.listen
+    exposed = [ep for ep in listen if not is_loopback(ep)]
+    if exposed and config.router.secure_dir is None and not config.insecure:
+        print(f"router: --listen {', '.join(exposed)} is reachable beyond this machine: set [router] secure_dir "
+              "(courtloc secure init) or insecure = true in the deployment file", file=sys.stderr)
+        return 2
     router_cfg = ZenohConfig(mode="router", connect=config.router.connect, listen=listen,
                              config_file=config.zenoh.config_file)
     stop = stop_on_signals()
@@ -73,6 +79,7 @@ def run_router(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot listen on {', '.join(listen)}: {reason}", RUN_EXIT) from None
     log.info("router listening on %s", ", ".join(listen))
     print(f"router listening on {', '.join(listen)}", flush=True)
+    warn_while_insecure(insecure_exposure(listen, config.router.secure_dir is not None), stop, log)
     try:
         while not stop.wait(0.5):
             pass

@@ -5,10 +5,10 @@ import argparse
 import json
 from pathlib import Path
 
-from courtloc.cli_errors import UsageError
+from courtloc.cli_errors import RUN_EXIT, UsageError
 from courtloc.cliargs import json_output, positive_float
 from courtloc.common.signals import stop_on_signals
-from courtloc.launcher import run_up
+from courtloc.launcher import LaunchError, run_up
 from courtloc.services.deployment import load_deployment
 from courtloc.services.infer.store import ModelStore
 
@@ -35,7 +35,10 @@ def run(args: argparse.Namespace) -> int:
     if "infer" in config.launcher.services:
         print(f"model store {config.infer.store}: serving {_active_model(config.infer.store)}", flush=True)
     stop = stop_on_signals()
-    summary = run_up(config, args.duration, args.summary_json, stop)
+    try:
+        summary = run_up(config, args.duration, args.summary_json, stop)
+    except LaunchError as exc:
+        raise UsageError(str(exc), RUN_EXIT) from None
     pose = summary.get("last_pose")
     if pose:
         print(f"served model: {pose['model_name']} v{pose['model_version']}")

@@ -13,6 +13,7 @@ from typing import Sequence
 
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.config_loader import ConfigError, load_model, resolve_relative_paths
+from courtloc.common.exposure import insecure_exposure, is_loopback, warn_while_insecure
 from courtloc.common.runtime import Service
 from courtloc.common.security import with_identity
 from courtloc.common.services_table import SERVICES, check_robot_id
@@ -37,8 +38,12 @@ class LauncherConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     services: list[str] = Field(default_factory=lambda: list(SERVICES))
     run_router: bool = Field(default=True, description="start an in-process router before the stages")
-    restart_backoff_s: float = Field(default=0.5, gt=0)
+    restart_backoff_s: float = Field(default=0.5, gt=0, description="a stage's first restart delay; doubles")
     restart_backoff_max_s: float = Field(default=5.0, gt=0)
+    restart_healthy_s: float = Field(default=10.0, gt=0, description="a stage up this long is healthy: its "
+                                     "next restart starts from the first delay again")
+    router_restart_backoff_s: float = Field(default=0.1, ge=0, description="the router's first restart delay "
+                                            "(every stage waits on it); doubles up to restart_backoff_s")
 
     @field_validator("services")
     @classmethod
@@ -62,6 +67,8 @@ class DeploymentConfig(BaseModel):
     preprocess: PreprocessConfig = Field(default_factory=PreprocessConfig)
     infer: InferConfig = Field(default_factory=InferConfig)
     shooter_bridge: ShooterConfig = Field(default_factory=ShooterConfig)
+    insecure: bool = Field(default=False, description="allow listening beyond loopback without the security "
+                           "bundle (a warning is logged every minute while it does)")
 
     @model_validator(mode="after")
     def _one_court_by_default(self) -> "DeploymentConfig":
@@ -77,6 +84,20 @@ class DeploymentConfig(BaseModel):
     @classmethod
     def _robot_id_is_a_key_chunk(cls, value: str) -> str:
         return check_robot_id(value)
+
+    @model_validator(mode="after")
+    def _secure_beyond_loopback(self) -> "DeploymentConfig":
+        """Other teams share the arena network: whatever listens beyond loopback requires mTLS, unless
+        the file says `insecure = true` in so many words."""
+        if self.insecure:
+            return self
+        if any(not is_loopback(ep) for ep in self.router.listen) and self.router.secure_dir is None:
+            raise ValueError(f"router.listen {self.router.listen} is reachable beyond this machine without "
+                             "router.secure_dir (run `courtloc secure init`), or set insecure = true")
+        if any(not is_loopback(ep) for ep in self.zenoh.listen) and self.zenoh.security is None:
+            raise ValueError(f"zenoh.listen {self.zenoh.listen} is reachable beyond this machine without "
+                             "[zenoh.security], or set insecure = true")
+        return self
 
 
 def load_deployment(path: Path | None) -> DeploymentConfig:
@@ -103,4 +124,7 @@ def stage_main(stage_class: type[Service], argv: Sequence[str] | None = None) ->
     name = stage_class.name
     # Each stage presents its own certificate and password (the ACL grants per identity).
     zenoh_config = config.zenoh.model_copy(update={"security": with_identity(config.zenoh.security, name)})
-    return stage_class(config.robot_id, zenoh_config, getattr(config, name)).run()
+    stage = stage_class(config.robot_id, zenoh_config, getattr(config, name))
+    warn_while_insecure(insecure_exposure(config.zenoh.listen, config.zenoh.security is not None),
+                        stage.stop_event, logging.getLogger(f"courtloc.{name}"))
+    return stage.run()

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from courtloc.localizer import paper_input
 from courtloc.lab.datasets import (
     DatasetError,
     duplicate_report,
@@ -16,6 +15,7 @@ from courtloc.lab.datasets import (
     recording_of,
     split_by_recording,
 )
+from courtloc.localizer import paper_input
 from courtloc.training.toy_data import write_toy_dataset
 
 

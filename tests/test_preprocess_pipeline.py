@@ -4,6 +4,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from courtloc.common.jpeg_header import jpeg_size
 from courtloc.common.payloads import FrameError, decode_frame, hits_from_bytes, hits_to_bytes
 from courtloc.scan.config import PreprocessConfig
 from courtloc.scan.preprocessor import Preprocessor
@@ -47,7 +48,7 @@ def test_decode_frame_jpeg_and_bgr8(frame: np.ndarray) -> None:
 
 @pytest.mark.parametrize("encoding,data,reason", [
     ("jpeg", b"", "empty"),
-    ("jpeg", b"\xff\xd8 definitely not a jpeg", "undecodable"),
+    ("jpeg", b"\xff\xd8 definitely not a jpeg", "not_jpeg"),
     ("bgr8", b"\x00" * 100, "size"),
     ("png24", b"\x00" * 10, "encoding"),
 ])
@@ -62,6 +63,36 @@ def test_decode_frame_refuses_a_jpeg_of_another_size_than_declared() -> None:
     with pytest.raises(FrameError, match="320x240") as caught:
         decode_frame("jpeg", jpeg.tobytes(), 640, 480)
     assert caught.value.reason == "size"
+
+
+def _with_declared_size(jpeg: bytes, width: int, height: int) -> bytes:
+    """`jpeg` with its frame header (SOF0) rewritten to declare another size: a decode bomb."""
+    sof = jpeg.index(b"\xff\xc0")
+    return jpeg[:sof + 5] + height.to_bytes(2, "big") + width.to_bytes(2, "big") + jpeg[sof + 9:]
+
+
+def test_jpeg_size_is_read_from_the_header() -> None:
+    ok, jpeg = cv2.imencode(".jpg", np.zeros((48, 64, 3), np.uint8))
+    assert jpeg_size(jpeg.tobytes()) == (64, 48)
+    assert jpeg_size(_with_declared_size(jpeg.tobytes(), 16000, 16000)) == (16000, 16000)
+
+
+def test_decode_bomb_is_refused_from_its_header() -> None:
+    """631 bytes declaring 16000x16000: refused by the declared size, never decoded."""
+    ok, jpeg = cv2.imencode(".jpg", np.zeros((8, 8, 3), np.uint8))
+    bomb = _with_declared_size(jpeg.tobytes(), 16000, 16000)
+    with pytest.raises(FrameError, match="declares 16000x16000") as caught:
+        decode_frame("jpeg", bomb, 640, 480)
+    assert caught.value.reason == "size"
+
+
+@pytest.mark.parametrize("ext", [".png", ".bmp"])
+def test_encoding_jpeg_accepts_only_jpeg(frame: np.ndarray, ext: str) -> None:
+    ok, other = cv2.imencode(ext, frame)
+    assert ok and cv2.imdecode(other, cv2.IMREAD_COLOR) is not None  # OpenCV itself would decode it
+    with pytest.raises(FrameError) as caught:
+        decode_frame("jpeg", other.tobytes(), 640, 480)
+    assert caught.value.reason == "not_jpeg"
 
 
 def test_paper_image_is_the_cropped_dot_image(frame: np.ndarray) -> None:

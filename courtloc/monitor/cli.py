@@ -2,9 +2,11 @@
 from __future__ import annotations
 
 import argparse
+import logging
 
 from courtloc.cli_errors import RUN_EXIT, UsageError
 from courtloc.cliargs import nonnegative_int, positive_float
+from courtloc.common.exposure import insecure_exposure, warn_while_insecure
 from courtloc.common.signals import stop_on_signals
 from courtloc.monitor.app import Monitor
 from courtloc.recording.busargs import add_client_arguments, client_deployment, wait_for_router
@@ -21,9 +23,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Plain HTTP shows the robot's streams to whoever can reach it: beyond loopback only when the
+    # deployment says insecure = true, and then with a warning every minute.
+    exposed = insecure_exposure([f"tcp/{args.host}:{args.port}"], secured=False)
     if not 1.0 <= args.rate <= 60.0:
         raise UsageError(f"--rate must be within 1..60, got {args.rate:g}")
     config = client_deployment(args)  # a bad file or field raises, named
+    if exposed and not config.insecure:
+        raise UsageError(f"--host {args.host} serves the robot's data unencrypted beyond this machine; "
+                         "set insecure = true in the deployment file to allow it")
     if args.timeout is not None:  # without it the page starts at once and shows "no router" until one answers
         wait_for_router(config.zenoh, args.timeout)
     try:
@@ -34,5 +42,6 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"cannot serve on {args.host}:{args.port}: {exc.strerror}", RUN_EXIT) from None
     stop = stop_on_signals()
     print(f"monitor for {config.robot_id} (router {', '.join(config.zenoh.connect)}): {monitor.url}", flush=True)
+    warn_while_insecure(exposed, stop, logging.getLogger("courtloc.monitor"))
     monitor.run(stop)
     return 0

@@ -69,7 +69,8 @@ def schema_data(name: str) -> bytes:
 def _mark_binary(node: Any) -> Any:
     if isinstance(node, dict):
         if node.get("type") == "string" and node.get("format") in ("binary", "base64", "base64url"):
-            node = {k: v for k, v in node.items() if k != "format"}
+            # maxLength counts bytes in the contract, not base64 characters: the text is longer
+            node = {k: v for k, v in node.items() if k not in ("format", "maxLength")}
             node["contentEncoding"] = "base64"
         return {k: _mark_binary(v) for k, v in node.items()}
     if isinstance(node, list):

@@ -79,6 +79,13 @@ class InferService(Service):
             return
         model = self.active  # one read: a swap between frames never splits a frame across two models
         assert model is not None
+        if not fresh:
+            # Old, or stamped in the future: never valid, and its capture time must not reach the
+            # tracker's motion model (a frame "from" +1000 s would poison every later prediction).
+            self.publish("infer/pose", Pose(header=message.header.forwarded(self.name, valid=False), x=0.0, y=0.0,
+                                            model_name=model.ref.name, model_version=model.ref.version,
+                                            infer_ms=0.0, reason="stale_input"))
+            return
         pose = self.make_pose(model, message, hits, fresh=fresh, tracker=self.tracker)
         self.publish("infer/pose", pose)
         shadow = self.shadow
@@ -119,7 +126,15 @@ class InferService(Service):
 
     # ---- model control (the runtime's control thread) -------------------------------------------
     def on_control(self, control: Control, request: BaseModel) -> BaseModel:
-        return self._control.handle(request)
+        return self._without_internals(self._control.handle(request))
+
+    def _without_internals(self, reply: ModelReply) -> ModelReply:
+        """The asker learns what went wrong, not where the robot keeps its files: the store's absolute
+        folder becomes `<store>` in any text of the reply."""
+        reason = reply.reason
+        for root in {str(self.store.root.resolve()), str(self.store.root)}:
+            reason = reason.replace(root, "<store>")
+        return reply if reason == reply.reason else reply.model_copy(update={"reason": reason})
 
     # ModelHost, for ModelControl
     def validate(self, stored: StoredModel, pushed: bool = False) -> LoadedModel:

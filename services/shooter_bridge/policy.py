@@ -1,6 +1,6 @@
 """From a pose to a command for the MCU: SET_RPM when every check passes, HOLD with a reason otherwise.
 
-Never a stale RPM: a pose that is too old, marked invalid, missing, or taken outside the shooting
+Never a stale RPM: a pose that is too old (or stamped in the future), marked invalid, missing, or taken outside the shooting
 area gives HOLD. The commanded RPM moves towards the table's value at most `slew_rpm_per_s` and stays
 inside [min_rpm, max_rpm]. While holding, the slew reference decays towards `idle_rpm` at the same
 rate, so the first SET_RPM after a long HOLD ramps up again instead of jumping back to speed.
@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
 
+from courtloc.common.messages import age_is_fresh
 from courtloc.services.shooter_bridge.config import AreaConfig, PolicyConfig, ShooterConfig
 from courtloc.services.shooter_bridge.protocol import Command, Flag, HoldReason
 from courtloc.shot.geometry import Aim, Pose2D, ShooterMount, UnreachableAim, aim
@@ -86,10 +87,12 @@ class ShotPolicy:
         self._last_now = now_s if self._last_now is None else max(self._last_now, now_s)
         return self.config.slew_rpm_per_s * dt
 
-    def decide(self, pose: Optional[Pose2D], age_s: float, valid: bool, now_s: float) -> ShotDecision:
+    def decide(self, pose: Optional[Pose2D], age_s: float, valid: bool, now_s: float,
+               future_tolerance_s: float = 0.0) -> ShotDecision:
+        """`age_s` below zero is a pose from the future: stale beyond `future_tolerance_s` (clock offset)."""
         step = self._advance(now_s)
         shot: Optional[Aim] = None
-        reason = self._gate(pose, age_s, valid)
+        reason = self._gate(pose, age_s, valid, future_tolerance_s)
         if pose is not None and reason in ("", "outside_area", "stale"):
             try:
                 shot = aim(pose, self.ring, self.mount)
@@ -119,7 +122,7 @@ class ShotPolicy:
         self._reference = rpm
         return ShotDecision(Command.SET_RPM, rpm, target, distance, bearing, flags, "")
 
-    def _gate(self, pose: Optional[Pose2D], age_s: float, valid: bool) -> str:
+    def _gate(self, pose: Optional[Pose2D], age_s: float, valid: bool, future_tolerance_s: float) -> str:
         """The first reason the pose cannot be shot from, or ''."""
         if pose is None:
             return "no_pose"
@@ -127,7 +130,7 @@ class ShotPolicy:
             return "invalid"
         if pose.yaw is not None and not math.isfinite(pose.yaw):
             return "invalid"
-        if not math.isfinite(age_s) or age_s > self.config.freshness_s:
+        if not math.isfinite(age_s) or not age_is_fresh(age_s, self.config.freshness_s, future_tolerance_s):
             return "stale"
         if not self.area(pose.x, pose.y):
             return "outside_area"

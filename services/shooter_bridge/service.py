@@ -15,6 +15,7 @@ from typing import Optional
 
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.inbox import Delivery
+from courtloc.common.limits import clip_text
 from courtloc.common.messages import Header, Pose, ShotSolution
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Topic
@@ -75,7 +76,7 @@ class ShooterBridgeService(Service):
             decision = self.policy.decide(None, math.inf, False, now)
         else:
             decision = self.policy.decide(Pose2D(pose.x, pose.y, pose.yaw), pose.header.age_ns() / 1e9,
-                                          pose.header.valid, now)
+                                          pose.header.valid, now, pose.header.future_tolerance_ns() / 1e9)
         self.link.send(*decision.frame_fields())
         if not decision.valid:
             self.holds[decision.reason] += 1
@@ -92,7 +93,7 @@ class ShooterBridgeService(Service):
             self._seq += 1
         reason = decision.reason
         if reason == "invalid" and pose is not None and pose.reason:
-            reason = f"invalid:{pose.reason}"  # keep the upstream cause for the operator
+            reason = clip_text(f"invalid:{pose.reason}")  # keep the upstream cause for the operator
         return ShotSolution(header=header,
                             distance_m=decision.distance_m if decision.distance_m is not None else math.nan,
                             bearing_rad=decision.bearing_rad, rpm=decision.rpm,

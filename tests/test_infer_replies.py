@@ -1,0 +1,38 @@
+"""Model-control replies say what went wrong, never where the robot keeps its files."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from buskit import BusClient, free_port, start_router, start_stage, write_config
+from courtloc.common import codec
+from courtloc.common.control import ModelReply, ModelRequest, Rollback
+from courtloc.common.services_table import CONTROLS
+
+pytestmark = pytest.mark.integration
+
+
+def test_a_store_error_reply_does_not_name_the_store_folder(tmp_path: Path) -> None:
+    from infer_models import bundled_default
+
+    if bundled_default() is None:
+        pytest.skip("no bundled model")
+    store = tmp_path / "store"
+    port = free_port()
+    router = start_router(port)
+    config = write_config(tmp_path / "deploy.toml", port, f'[infer]\nstore = "{store}"\n')
+    client = BusClient(port)
+    stage = start_stage("infer", config)
+    try:
+        stage.wait_line("infer running for robot", timeout=60)
+        (store / "active.json").write_text("{ damaged")  # the store's own record, broken on disk
+        control = CONTROLS["infer/model"]
+        replies = client.session.get(control.key("robot1"), payload=codec.encode(ModelRequest(body=Rollback())),
+                                     timeout=30)
+        reply = next(codec.decode(bytes(r.ok.payload), ModelReply) for r in replies if r.ok is not None)
+    finally:
+        client.close()
+        stage.stop()
+        router.stop()
+    assert not reply.ok and reply.reason
+    assert str(tmp_path) not in reply.reason and str(tmp_path.resolve()) not in reply.reason, reply.reason
