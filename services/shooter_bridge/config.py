@@ -8,6 +8,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from courtloc.services.shooter_bridge.ballistics import ShotModel
 from courtloc.services.shooter_bridge.geometry import ShooterMount, ring_for
+from courtloc.services.shooter_bridge.odometry import OdometryConfig
 
 
 class _Strict(BaseModel):
@@ -119,6 +120,7 @@ class ShooterConfig(_Strict):
     rpm: RpmConfig = Field(default_factory=RpmConfig)
     policy: PolicyConfig = Field(default_factory=PolicyConfig)
     link: LinkConfig = Field(default_factory=LinkConfig)
+    odometry: OdometryConfig = Field(default_factory=OdometryConfig)
     decide_period_s: float = Field(0.05, gt=0, le=1.0, description="re-decide at least this often, so a pose "
                                    "that stops arriving turns into HOLD")
 
