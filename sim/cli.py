@@ -1,4 +1,4 @@
-"""CLI of the digital twin: `courtloc calibrate` and the `courtloc dataset` group (`dataset synth`).
+"""CLI of the digital twin: `courtloc calibrate` (+ `intrinsics`, `mount`) and the `courtloc dataset` group.
 
 Extending `courtloc dataset`: add a module name to DATASET_COMMAND_MODULES; the module exposes
 `register_dataset(dataset_subparsers)` and adds its sub-command there with `set_defaults(func=handler)`,
@@ -76,10 +76,11 @@ def _synth(args: argparse.Namespace) -> int:
 
 # ---- calibrate ---------------------------------------------------------------------------------------
 def _register_calibrate(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("calibrate", help="fit the camera to labelled edge-dot images (seed format)")
-    p.add_argument("--data", required=True, help="directory of the images named in the CSV")
-    p.add_argument("--csv", required=True, help="pose CSV: image_filename, x, y, orientation_z")
-    p.add_argument("--court", required=True, help="court name or JSON path")
+    p = sub.add_parser("calibrate", help="fit the camera: to labelled edge-dot images (seed format, the options "
+                                         "below), or `calibrate intrinsics` / `calibrate mount` for a new robot")
+    p.add_argument("--data", help="directory of the images named in the CSV")
+    p.add_argument("--csv", help="pose CSV: image_filename, x, y, orientation_z")
+    p.add_argument("--court", help="court name or JSON path")
     p.add_argument("--init", default=None, help="starting camera (name or JSON); default: a rough nominal guess")
     p.add_argument("--frames", type=int, default=300, help="frames used, spread evenly over the CSV")
     p.add_argument("--lag", type=float, default=None, help="image->label lag in seconds (default: the seed's 0.0147)")
@@ -90,6 +91,9 @@ def _register_calibrate(sub: argparse._SubParsersAction) -> None:
                    help="render this many labelled frames with the fit and compare their hits with the dots")
     p.add_argument("--out", default=None, help="write the fitted camera JSON here")
     p.set_defaults(func=_calibrate)
+    from courtloc.sim.calibrate_cli import register_calibrate_verbs
+
+    register_calibrate_verbs(p.add_subparsers(dest="calibrate_command", metavar="{intrinsics,mount}"))
 
 
 def _calibrate(args: argparse.Namespace) -> int:
@@ -103,6 +107,10 @@ def _calibrate(args: argparse.Namespace) -> int:
     from courtloc.sim.court import load_court
     from courtloc.sim.labels import lag_corrected, read_pose_csv
 
+    missing = [f"--{name}" for name in ("data", "csv", "court") if not getattr(args, name)]
+    if missing:
+        print(f"error: calibrate needs {', '.join(missing)} (or a sub-command: intrinsics, mount)", file=sys.stderr)
+        return 2
     lag = SEED_LAG_S if args.lag is None else args.lag
     try:
         court = load_court(args.court)
