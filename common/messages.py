@@ -108,6 +108,8 @@ class Pose(Strict):
     model_version: int
     infer_ms: float
     reason: str = ""
+    covariance: list[float] = Field(default_factory=list,
+                                    description="row-major 3x3 covariance of (x, y, yaw) when the model tracks; [] else")
 
 
 class ShotSolution(Strict):

@@ -31,6 +31,8 @@ class Service:
     """Base of every stage process. Subclasses set `name` (a key of SERVICES)."""
 
     name: ClassVar[str]
+    # Inputs that only feed state (e.g. odometry into infer's filter): not timed as the stage's latency.
+    side_inputs: ClassVar[frozenset[str]] = frozenset()
 
     def __init__(self, robot_id: str, zenoh_config: ZenohConfig) -> None:
         self.robot_id = robot_id
@@ -185,7 +187,8 @@ class Service:
                 self.log.exception("handling %s failed", delivery.topic_path)
                 self.record_error("handler", f"{type(exc).__name__}: {exc}")
                 continue
-            self.record_latency(time.perf_counter_ns() - start)
+            if delivery.topic_path not in self.side_inputs:
+                self.record_latency(time.perf_counter_ns() - start)
 
     def _health_loop(self) -> None:
         while not self.stop_event.wait(HEALTH_PERIOD_S):

@@ -96,7 +96,8 @@ SERVICES: dict[str, ServiceSpec] = {
         ServiceSpec("camera", (), ("camera/frame", "camera/ground_truth"), "frames from a device, file, folder or the sim"),
         ServiceSpec("preprocess", ("camera/frame",), ("preprocess/edges", "preprocess/preview"),
                     "HSV white mask + radial scan"),
-        ServiceSpec("infer", ("preprocess/edges",), ("infer/pose", "infer/shadow_pose"), "edge hits -> pose"),
+        ServiceSpec("infer", ("preprocess/edges", "shooter_bridge/odometry"), ("infer/pose", "infer/shadow_pose"),
+                    "edge hits (+ odometry when infer.fusion is on) -> pose"),
         ServiceSpec("shooter_bridge", ("infer/pose",), ("shooter_bridge/solution", "shooter_bridge/odometry"),
                     "pose -> RPM -> MCU; MCU odometry -> bus"),
     )

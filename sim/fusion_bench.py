@@ -44,7 +44,8 @@ def loop_trajectory(speed: float):  # noqa: ANN201
 
 def run_scenario(scenario: str, package: Path | None = None, speed: float = 1.5, duration: float = 8.0,
                  blackout_at: float = 4.0, blackout_s: float = 2.0, fps: float = 30.0, seed: int = 0,
-                 fusion_config=None) -> dict:  # noqa: ANN001
+                 fusion_config=None, detail: bool = False) -> dict:  # noqa: ANN001
+    """Both runs' summaries; `detail` adds every frame's (t, blind, valid, error) under `rows`."""
     from courtloc.localizer.odometry_fusion import FusionConfig, OdometryFusion, fused_track
     from courtloc.localizer.predictor import load_predictor
     from courtloc.services.infer.service import bundled_default
@@ -76,6 +77,8 @@ def run_scenario(scenario: str, package: Path | None = None, speed: float = 1.5,
             truth = trajectory.pose_at(float(t))
             rows.append((float(t), dark, bool(pred.valid), math.hypot(pred.x - truth[0], pred.y - truth[1])))
         runs[name] = _summary(rows, blackout_at, scenario)
+        if detail:
+            runs[name]["rows"] = rows
         if fusion is not None:
             runs[name]["fusion"] = fusion.health()
     return {"scenario": scenario, "speed_m_s": speed, "duration_s": duration, "fps": fps,

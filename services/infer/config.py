@@ -7,6 +7,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from courtloc.localizer.odometry_fusion import FusionConfig
+
 
 def default_store_path() -> Path:
     base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
@@ -33,3 +35,5 @@ class InferConfig(BaseModel):
     require_signature: bool = Field(default=False, description="refuse pushed models without a valid signature")
     signing_public_key: Path | None = None
     max_upload_mb: float = Field(default=2048.0, gt=0)
+    fusion: FusionConfig = Field(default_factory=FusionConfig,
+                                 description="odometry fusion in the tracker (off: shooter_bridge/odometry is ignored)")

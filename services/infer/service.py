@@ -14,7 +14,7 @@ import zenoh
 from courtloc.common import codec
 from courtloc.common.control import ModelReply, ModelRequest
 from courtloc.common.inbox import Delivery
-from courtloc.common.messages import Edges, Pose
+from courtloc.common.messages import Edges, Odometry, Pose
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import CONTROLS, Topic
@@ -27,6 +27,7 @@ from courtloc.services.infer.store import ModelRef, ModelStore, StoredModel
 from courtloc.services.infer.tracking import Tracker
 from courtloc.services.infer.uploads import Uploads
 from courtloc.services.preprocess.pipeline import hits_from_bytes
+from courtloc.localizer.odometry_fusion import OdometryFusion, fused_track, pose_covariance
 
 DEFAULT_MODEL_NAME = "default"
 
@@ -44,6 +45,7 @@ def hits_of(edges: Edges) -> np.ndarray:
 
 class InferService(Service):
     name = "infer"
+    side_inputs = frozenset({"shooter_bridge/odometry"})
 
     def __init__(self, robot_id: str, zenoh_config: ZenohConfig, config: InferConfig) -> None:
         super().__init__(robot_id, zenoh_config)
@@ -53,6 +55,8 @@ class InferService(Service):
         self.active: LoadedModel | None = None
         self.shadow: ShadowRunner | None = None
         self.tracker = Tracker()
+        # Odometry fusion (localizer/odometry_fusion.py): None unless configured, then poses are as before.
+        self.fusion = OdometryFusion(config.fusion) if config.fusion.enabled else None
         self.swaps = 0
         self._control = ModelControl(self, Uploads(self.store, int(config.max_upload_mb * 2**20)))
         self._control_thread: threading.Thread | None = None
@@ -95,7 +99,11 @@ class InferService(Service):
             return load_model(self.store.get(target), self.config, golden=None)
 
     # ---- the hot path --------------------------------------------------------------------
-    def on_message(self, topic: Topic, message: Edges, delivery: Delivery) -> None:
+    def on_message(self, topic: Topic, message: Edges | Odometry, delivery: Delivery) -> None:
+        if isinstance(message, Odometry):  # fusion hook: odometry only fills the fusion's buffer
+            if self.fusion is not None:
+                self.fusion.offer(message, time.monotonic())
+            return
         fresh = self.is_fresh(message.header, topic)
         try:
             hits = hits_of(message)
@@ -118,14 +126,20 @@ class InferService(Service):
         yaw: float | None = None
         quality = 0.0
         ok = False
-        if len(hits) == 0:
+        track = getattr(model.predictor, "track", None)
+        # Fusion hook: the serving tracker (never a shadow's) predicts with odometry, even through a blind frame.
+        fusion = self.fusion if tracker is self.tracker and track is not None else None
+        covariance: list[float] = []
+        fusion_reason = ""
+        if len(hits) == 0 and fusion is None:
             reason = "no_hits"
         else:
-            track = getattr(model.predictor, "track", None)
             if track is not None:
                 # Capture times on the camera's monotonic clock: the filter predicts over the real interval.
-                pred, tracker.motion = track(hits, edges.width, edges.height, tracker.motion,
-                                             t=edges.header.capture_mono_ns * 1e-9)
+                pred, tracker.motion, fusion_reason = fused_track(
+                    model.predictor, fusion, hits, edges.width, edges.height, tracker.motion,
+                    t=edges.header.capture_mono_ns * 1e-9)
+                covariance = pose_covariance(tracker.motion)
             else:
                 pred = model.predictor.predict(hits, edges.width, edges.height, previous=tracker.previous)
             x, y, yaw, quality = float(pred.x), float(pred.y), pred.yaw, float(pred.quality)
@@ -136,7 +150,7 @@ class InferService(Service):
             elif not is_on_court(model.court, x, y, self.config.on_court_margin_m):
                 reason = "off_court"
             elif not pred.valid:
-                reason = "low_quality"
+                reason = fusion_reason or ("no_hits" if len(hits) == 0 else "low_quality")
             ok = not reason
         if ok and not fresh:
             reason, ok = "stale_input", False
@@ -145,7 +159,7 @@ class InferService(Service):
         header = edges.header.forwarded(self.name, valid=ok)
         return Pose(header=header, x=x, y=y, yaw=None if yaw is None else float(yaw), quality=quality,
                     model_name=model.ref.name, model_version=model.ref.version,
-                    infer_ms=(time.perf_counter() - start) * 1e3, reason=reason)
+                    infer_ms=(time.perf_counter() - start) * 1e3, reason=reason, covariance=covariance)
 
     # ---- model control (its own thread) -------------------------------------------------------
     def _enqueue_query(self, query: zenoh.Query) -> None:
@@ -225,4 +239,6 @@ class InferService(Service):
         detail: dict[str, float | int | str] = {"swaps": self.swaps}
         if model is not None:
             detail.update(model=model.ref.name, model_version=model.ref.version)
+        if self.fusion is not None:
+            detail.update(self.fusion.health())
         return detail
