@@ -20,9 +20,14 @@ at the frame's time). Vision fixes then correct it exactly as before (gate, fuse
 - **Bad odometry** is rejected with a counted reason before it reaches the buffer: not finite,
   invalid, from another host's clock, from the future or too old, a stalled source clock, a jump (more
   speed or turn rate than a robot has). A saturated gyro or a slip flag down-weights.
-- **Validity.** Without a vision fix the pose may stay valid on odometry alone for `horizon_s` after the
-  last fix, and only while its position std is below `max_position_std_m`; then it is invalid
-  (reason `odometry_horizon`) until vision returns.
+- **Validity.** A blind frame (fewer than `min_hits_in_view` hits) may be valid on odometry alone for
+  `horizon_s` after the last fix, and only while its position std is below `max_position_std_m`; then
+  it is invalid (reason `odometry_horizon`) until vision returns. A frame with lines in view but no fix
+  near the prediction is never valid on odometry (`odometry_unconfirmed`).
+- **Kidnap.** Vision and odometry disagreeing (a fix that restarts the track far outside the odometry
+  prediction's covariance, or `disagree_frames` frames in a row with court lines in view but no fix
+  near the prediction) marks every pose invalid (`odometry_disagrees`) and makes the tracker search
+  the whole court, until `recover_fixes` fixes in a row agree again.
 """
 from __future__ import annotations
 
@@ -59,6 +64,12 @@ class FusionConfig(BaseModel):
     scale_bounds: tuple[float, float] = (0.85, 1.15)
     learn_window_s: tuple[float, float] = Field((0.3, 2.0), description="fix pairs this far apart teach bias/scale")
     min_learn_distance_m: float = Field(0.3, gt=0, description="shorter drives do not teach the wheel scale")
+    disagree_chi2: float = Field(25.0, gt=0, description="a vision fix this far (chi-square, 3 dof) from the "
+                                 "odometry prediction restarts the track: suspected kidnap")
+    disagree_frames: int = Field(3, ge=1, description="frames in a row WITH court lines in view but no fix "
+                             "that fits the odometry prediction: suspected kidnap")
+    min_hits_in_view: int = Field(40, ge=1, description="a frame with fewer hits is blind, not disagreeing")
+    recover_fixes: int = Field(5, ge=1, description="fixes in a row that agree before poses are valid again")
 
 
 @dataclass(frozen=True)
@@ -169,6 +180,10 @@ class OdometryFusion:
         self._last: Optional[_Sample] = None
         self._predicted_t: Optional[float] = None  # the frame time the last prediction used odometry for
         self._anchor: Optional[tuple[float, np.ndarray]] = None  # first fix of the pair that teaches bias/scale
+        self.suspect = False  # vision disagrees with odometry (kidnap, or a wrong track): invalid until recovered
+        self._disagreeing = 0  # frames in a row with lines in view but no fix
+        self._agreeing = 0  # fixes in a row since a suspicion
+        self.search_pending = False  # the next frame searches the whole court (once per suspicion)
 
     # ---- input ----------------------------------------------------------------------------------
     def offer(self, message: Odometry, now_s: float) -> bool:
@@ -272,20 +287,41 @@ class OdometryFusion:
         within = self.last_fix is not None and t - self.last_fix[0] <= cfg.horizon_s
         return motion.MotionState(mean=mean, cov=cov, t=t, lost=0 if within else state.lost)
 
+    def search_next(self, state: motion.MotionState, cfg: motion.MotionConfig) -> motion.MotionState:
+        """The state marked lost, so the tracker searches the whole court next frame (the odometry prior
+        is the thing in doubt; the lost state's pose still only picks the symmetry twin)."""
+        return motion.MotionState(mean=state.mean, cov=state.cov, t=state.t, lost=max(state.lost, cfg.max_lost_frames))
+
     def after_frame(self, valid: bool, fused_by_vision: bool, state: Optional[motion.MotionState],
-                    t: Optional[float]) -> tuple[bool, str]:
+                    t: Optional[float], n_hits: int = 0) -> tuple[bool, str]:
         """Learn from a vision fix; decide whether a frame without one may be valid on odometry alone.
 
         Returns (valid, reason): the frame's validity after fusion and, when odometry decided, why."""
         if t is None or state is None:
             return valid, ""
         if valid and fused_by_vision:
+            self._disagreeing = 0
+            if self.suspect:
+                self._agreeing += 1
+                if self._agreeing < self.config.recover_fixes:
+                    self.last_fix = (t, state.pose)
+                    return False, "odometry_disagrees"
+                self.suspect = False
+                self.counts["recovered"] += 1
             self._learn(t, state.pose)
             self.last_fix = (t, state.pose)
             return True, ""
         self._anchor = None  # a frame without a fix ends the fix pair (the next fix starts a new one)
+        if self.suspect:
+            self._agreeing = 0
+            return False, "odometry_disagrees"
         if valid or self._predicted_t != t:
             return valid, ""
+        if n_hits >= self.config.min_hits_in_view:
+            # Court lines in view and still no fix near the odometry prediction: one of them is wrong, and
+            # a pose that may be wrong is not valid. (Blind frames are the odometry's to bridge.)
+            self.counts["no_fix_in_view"] += 1
+            return False, "odometry_unconfirmed"
         if self.last_fix is None or t - self.last_fix[0] > self.config.horizon_s:
             self.counts["beyond_horizon"] += 1
             return False, "odometry_horizon"
@@ -294,6 +330,35 @@ class OdometryFusion:
             return False, "odometry_uncertain"
         self.counts["valid_on_odometry"] += 1
         return True, ""
+
+    def note_vision(self, before: Optional[motion.MotionState], after: Optional[motion.MotionState], n_hits: int,
+                    fused: bool) -> None:
+        """Suspect a kidnap when vision and odometry disagree: a fix that restarted the track far from the
+        odometry prediction, or `disagree_frames` frames in a row with lines in view and no fix."""
+        if self.suspect or before is None or self._predicted_t is None or before.t != self._predicted_t:
+            return  # while suspected, recovery is counted by after_frame
+        if fused and after is not None:
+            nu = after.mean[:3] - before.mean[:3]
+            nu[2] = _wrap(float(nu[2]))
+            s = before.cov[:3, :3] + np.diag([0.02 ** 2, 0.02 ** 2, math.radians(1.0) ** 2])
+            if float(nu @ np.linalg.solve(s, nu)) > self.config.disagree_chi2:
+                self._suspect("restart")
+            return
+        if n_hits >= self.config.min_hits_in_view:
+            self._disagreeing += 1
+            if self._disagreeing >= self.config.disagree_frames:
+                self._suspect("no_fit_in_view")
+        else:
+            self._disagreeing = 0
+
+    def _suspect(self, why: str) -> None:
+        if not self.suspect:
+            self.counts[f"suspect_{why}"] += 1
+        self.suspect = True
+        self.search_pending = True
+        self._agreeing = 0
+        self._disagreeing = 0
+        self._anchor = None
 
     def _learn(self, t: float, pose: np.ndarray) -> None:
         """Gyro bias and wheel scale from two vision fixes at least `learn_window_s[0]` apart (an unbroken run
@@ -324,8 +389,8 @@ class OdometryFusion:
     def health(self) -> dict[str, float | int]:
         detail: dict[str, float | int] = {f"odom_rejected.{k}": v for k, v in self.rejected.items()}
         detail.update({f"fusion.{k}": v for k, v in self.counts.items()})
-        detail["fusion.gyro_bias_rad_s"] = round(self.bias.mean, 6)
-        detail["fusion.wheel_scale"] = round(self.scale.mean, 5)
+        detail["fusion.gyro_bias_rad_s"] = round(float(self.bias.mean), 6)
+        detail["fusion.wheel_scale"] = round(float(self.scale.mean), 5)
         return detail
 
 
@@ -338,15 +403,21 @@ def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, w
         pred, state = predictor.track(hits, width, height, state, t=t)
         return pred, state, ""
     before = fusion.before_frame(state, t)
+    if fusion.search_pending and before is not None:
+        before = fusion.search_next(before, predictor.localizer.config.motion)
+        fusion.search_pending = False
     pred, after = predictor.track(hits, width, height, before, t=t)
     # lost == 0 after the step: a fit was fused, or a valid one (re)started the track.
     fused_by_vision = after is not None and after.lost == 0
-    valid, reason = fusion.after_frame(pred.valid, fused_by_vision, after, t)
-    if after is not None and fusion._predicted_t == t and not pred.valid:
+    fusion.note_vision(before, after, len(hits), fused_by_vision)
+    valid, reason = fusion.after_frame(pred.valid, fused_by_vision, after, t, len(hits))
+    if after is not None and fusion._predicted_t == t and not pred.valid and not fusion.suspect:
         # No usable fit: the answer is the odometry prediction (the filter's state), valid or not.
         x, y, yaw = (float(v) for v in after.mean[:3])
         pred = pred.model_copy(update={"x": x, "y": y, "yaw": yaw, "valid": valid, "mode": "odometry",
                                        "position_std_m": after.position_std_m})
+    elif pred.valid and not valid:  # vision and odometry disagree: not valid until they agree again
+        pred = pred.model_copy(update={"valid": False, "quality": min(pred.quality, 0.49)})
     return pred, after, reason
 
 

@@ -23,7 +23,8 @@ import numpy as np
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scenario", choices=("blackout", "normal"), default="blackout")
+    parser.add_argument("--scenario", choices=("blackout", "normal", "kidnap"), default="blackout")
+    parser.add_argument("--kidnap-at", type=float, default=4.0, help="kidnap: seconds into the run")
     parser.add_argument("--package", type=Path, help="localizer package folder (default: the bundled one)")
     parser.add_argument("--speed", type=float, default=1.5, help="driving speed, m/s")
     parser.add_argument("--duration", type=float, default=8.0, help="seconds of driving")
@@ -44,7 +45,8 @@ def loop_trajectory(speed: float):  # noqa: ANN201
 
 def run_scenario(scenario: str, package: Path | None = None, speed: float = 1.5, duration: float = 8.0,
                  blackout_at: float = 4.0, blackout_s: float = 2.0, fps: float = 30.0, seed: int = 0,
-                 fusion_config=None, detail: bool = False) -> dict:  # noqa: ANN001
+                 fusion_config=None, detail: bool = False, kidnap_at: float = 4.0,
+                 kidnap: tuple[float, float, float] = (0.8, -0.4, 0.3)) -> dict:  # noqa: ANN001
     """Both runs' summaries; `detail` adds every frame's (t, blind, valid, error) under `rows`."""
     from courtloc.localizer.odometry_fusion import FusionConfig, OdometryFusion, fused_track
     from courtloc.localizer.predictor import load_predictor
@@ -60,8 +62,21 @@ def run_scenario(scenario: str, package: Path | None = None, speed: float = 1.5,
     times = np.arange(1, int(duration * fps)) / fps
     blind = [(scenario == "blackout" and blackout_at <= t < blackout_at + blackout_s) for t in times]
     frames = []
+    def truth_at(t: float) -> tuple[float, float, float]:
+        # kidnap: from kidnap_at on the robot stands displaced by `kidnap` (picked up and put down, or a
+        # collision that the wheels did not feel); its odometry goes on as if nothing happened.
+        x, y, yaw = trajectory.pose_at(t)
+        if scenario != "kidnap" or t < kidnap_at:
+            return x, y, yaw
+        # The rest of the drive moved rigidly: displaced and turned about the kidnap point, so the wheels
+        # and the gyro still measure exactly the motion that happens.
+        x0, y0, _ = trajectory.pose_at(kidnap_at)
+        c, s = math.cos(kidnap[2]), math.sin(kidnap[2])
+        dx, dy = x - x0, y - y0
+        return x0 + kidnap[0] + c * dx - s * dy, y0 + kidnap[1] + s * dx + c * dy, yaw + kidnap[2]
+
     for t, dark in zip(times, blind):
-        hits = scan_hits(renderer.render(trajectory.pose_at(float(t))))
+        hits = scan_hits(renderer.render(truth_at(float(t))))
         frames.append(hits[:0] if dark else hits)
     runs = {}
     for name, fusion in (("vision_only", None),
@@ -74,19 +89,21 @@ def run_scenario(scenario: str, package: Path | None = None, speed: float = 1.5,
                 fusion.offer(messages[delivered].message, now)
                 delivered += 1
             pred, state, _ = fused_track(predictor, fusion, hits, 640, 480, state, float(t))
-            truth = trajectory.pose_at(float(t))
+            truth = truth_at(float(t))
             rows.append((float(t), dark, bool(pred.valid), math.hypot(pred.x - truth[0], pred.y - truth[1])))
-        runs[name] = _summary(rows, blackout_at, scenario)
+        runs[name] = _summary(rows, blackout_at, scenario, kidnap_at)
         if detail:
             runs[name]["rows"] = rows
         if fusion is not None:
             runs[name]["fusion"] = fusion.health()
     return {"scenario": scenario, "speed_m_s": speed, "duration_s": duration, "fps": fps,
             "blackout": [blackout_at, blackout_at + blackout_s] if scenario == "blackout" else None,
+            "kidnap": {"at_s": kidnap_at, "displacement": list(kidnap)} if scenario == "kidnap" else None,
             "package": str(package or "bundled"), **runs}
 
 
-def _summary(rows: list[tuple[float, bool, bool, float]], blackout_at: float, scenario: str) -> dict:
+def _summary(rows: list[tuple[float, bool, bool, float]], blackout_at: float, scenario: str,
+             kidnap_at: float = math.inf) -> dict:
     seen = np.array([e for t, dark, valid, e in rows if not dark and valid])
     valid_err = [e for _, _, valid, e in rows if valid]
     out = {"frames": len(rows), "valid_fraction": float(np.mean([v for _, _, v, _ in rows])),
@@ -99,12 +116,20 @@ def _summary(rows: list[tuple[float, bool, bool, float]], blackout_at: float, sc
         out["error_growth_m"] = float(max(e for e, _ in dark) - (np.mean(before) if before else 0.0))
         out["valid_fraction_blackout"] = float(np.mean([v for _, v in dark]))
         out["max_valid_error_blackout_m"] = float(max((e for e, v in dark if v), default=0.0))
+    if scenario == "kidnap":
+        after = [(t, v, e) for t, _, v, e in rows if t >= kidnap_at]
+        first_invalid = next((t for t, v, _ in after if not v), math.inf)
+        wrong_valid = [t for t, v, e in after if v and e > 0.10]
+        out["kidnap_noticed_after_s"] = first_invalid - kidnap_at
+        out["valid_and_wrong_after_kidnap"] = len(wrong_valid)  # valid poses more than 10 cm off
+        recovered = next((t for t, v, e in after if t > first_invalid and v and e <= 0.10), math.inf)
+        out["recovered_after_s"] = recovered - kidnap_at
     return out
 
 
 def run(args: argparse.Namespace) -> int:
     result = run_scenario(args.scenario, args.package, args.speed, args.duration, args.blackout_at, args.blackout_s,
-                          args.fps, args.seed)
+                          args.fps, args.seed, kidnap_at=args.kidnap_at)
     text = json.dumps(result, indent=1)
     print(text)
     if args.json:

@@ -129,3 +129,15 @@ def test_no_pose_is_valid_on_odometry_alone_beyond_the_horizon() -> None:
     assert blind_valid and max(blind_valid) - last_fix <= 0.8
     assert any(blind and not valid for _, blind, valid, _ in rows)
     assert result["fused"]["fusion"]["fusion.beyond_horizon"] > 0
+
+
+def test_a_kidnap_is_noticed_and_never_reported_valid_while_wrong() -> None:
+    from courtloc.sim.fusion_bench import run_scenario
+
+    # At 2 s the robot is displaced by (0.8, -0.4) m and turned 0.3 rad; its wheels and gyro feel nothing.
+    result = run_scenario("kidnap", duration=3.5, kidnap_at=2.0)
+    fused = result["fused"]
+    assert fused["kidnap_noticed_after_s"] <= 0.5
+    assert fused["valid_and_wrong_after_kidnap"] == 0
+    assert fused["recovered_after_s"] <= 1.0  # valid again, and right, once vision and odometry agree
+    assert fused["fusion"]["fusion.recovered"] == 1
