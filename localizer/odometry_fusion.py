@@ -389,6 +389,7 @@ class OdometryFusion:
     def health(self) -> dict[str, float | int]:
         detail: dict[str, float | int] = {f"odom_rejected.{k}": v for k, v in self.rejected.items()}
         detail.update({f"fusion.{k}": v for k, v in self.counts.items()})
+        detail["fusion.odometry_buffered"] = len(self.buffer.samples)
         detail["fusion.gyro_bias_rad_s"] = round(float(self.bias.mean), 6)
         detail["fusion.wheel_scale"] = round(float(self.scale.mean), 5)
         return detail
