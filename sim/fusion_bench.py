@@ -120,10 +120,11 @@ def _summary(rows: list[tuple[float, bool, bool, float]], blackout_at: float, sc
         after = [(t, v, e) for t, _, v, e in rows if t >= kidnap_at]
         first_invalid = next((t for t, v, _ in after if not v), math.inf)
         wrong_valid = [t for t, v, e in after if v and e > 0.10]
-        out["kidnap_noticed_after_s"] = first_invalid - kidnap_at
+        # None: never (JSON has no infinity)
+        out["kidnap_noticed_after_s"] = first_invalid - kidnap_at if math.isfinite(first_invalid) else None
         out["valid_and_wrong_after_kidnap"] = len(wrong_valid)  # valid poses more than 10 cm off
         recovered = next((t for t, v, e in after if t > first_invalid and v and e <= 0.10), math.inf)
-        out["recovered_after_s"] = recovered - kidnap_at
+        out["recovered_after_s"] = recovered - kidnap_at if math.isfinite(recovered) else None
     return out
 
 
