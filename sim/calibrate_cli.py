@@ -34,8 +34,16 @@ def register_calibrate_verbs(verbs: argparse._SubParsersAction) -> None:
                    help="camera JSON with the intrinsics (from `calibrate intrinsics`)")
     m.add_argument("--pose", dest="mount_pose", action="append", required=True, metavar="X,Y,YAW",
                    help="where the robot stood (court metres, yaw in radians); repeat with --frames for more poses")
-    m.add_argument("--frames", dest="mount_frames", action="append", required=True, metavar="DIR",
+    m.add_argument("--frames", dest="mount_frames", action="append", default=[], metavar="DIR",
                    help="folder of frames taken at the matching --pose")
+    m.add_argument("--live", dest="mount_live", action="store_true",
+                   help="take the frames of the (single) --pose from the running robot's camera/frame instead")
+    m.add_argument("--live-frames", dest="mount_live_n", type=int, default=5, help="frames to take with --live")
+    m.add_argument("--save", dest="mount_save", type=Path, default=None,
+                   help="with --live: keep the frames in this folder (default: a new temporary folder)")
+    from courtloc.recording.busargs import add_client_arguments
+
+    add_client_arguments(m)
     m.add_argument("--height", dest="mount_height", type=float, default=None,
                    help="starting height, metres (default: searched)")
     m.add_argument("--pitch", dest="mount_pitch", type=float, default=None,
@@ -92,6 +100,13 @@ def _mount(args: argparse.Namespace) -> int:
     from courtloc.sim.court import load_court
     from courtloc.sim.mount import MountError, PoseFrames, fit_mount, hits_of_frames, mounted_camera
 
+    if args.mount_live:
+        if len(args.mount_pose) != 1 or args.mount_frames:
+            return _fail("--live takes the frames of exactly one --pose (and no --frames)")
+        try:
+            args.mount_frames = [str(_live_frames(args))]
+        except (ValueError, OSError) as exc:
+            return _fail(_one_line(exc))
     if len(args.mount_pose) != len(args.mount_frames):
         return _fail(f"{len(args.mount_pose)} --pose and {len(args.mount_frames)} --frames: give one --frames per --pose")
     try:
@@ -114,6 +129,20 @@ def _mount(args: argparse.Namespace) -> int:
         _write_camera(mounted_camera(result, Path(args.mount_out).stem), args.mount_out)
         print(f"camera written to {args.mount_out}", file=sys.stderr if args.mount_json else sys.stdout)
     return 0
+
+
+def _live_frames(args: argparse.Namespace) -> Path:
+    """Frames from the robot's running camera stage, saved where `calibrate mount` reads them."""
+    import tempfile
+
+    from courtloc.recording.busargs import client_deployment
+    from courtloc.sim.live_frames import grab_frames
+
+    deployment = client_deployment(args)
+    folder = args.mount_save or Path(tempfile.mkdtemp(prefix="courtloc-mount-"))
+    saved = grab_frames(deployment.robot_id, deployment.zenoh, args.mount_live_n, folder)
+    print(f"{len(saved)} live frames saved in {folder}", file=sys.stderr)
+    return folder
 
 
 def _one_line(exc: Exception) -> str:

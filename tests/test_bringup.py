@@ -163,3 +163,52 @@ def test_mount_cli_mistakes_are_one_line(tmp_path, capsys):
     code, _, err = _run(["calibrate", "mount", "--court", COURT, "--camera", str(tmp_path / "cam.json"),
                          "--pose", "1,2,0", "--frames", str(tmp_path)], capsys)
     assert code == 2 and "no image files" in err
+
+
+@pytest.mark.integration
+def test_mount_live_takes_frames_from_the_running_camera_topic(tmp_path, capsys) -> None:
+    """`calibrate mount --live` as its own process, joining a real router where frames of the new camera,
+    standing at a measured pose, are being published as the camera stage would."""
+    import subprocess
+    import threading
+
+    from buskit import PYTHON, BusClient, free_port, start_router, write_config
+    from courtloc.common import codec
+    from courtloc.common.messages import Frame, Header
+    from courtloc.sim.render import Renderer
+
+    port = free_port()
+    config = write_config(tmp_path / "robot.toml", port)
+    (tmp_path / "cam.json").write_text(json.dumps(TRUE.model_dump()))
+    image = Renderer(load_court(COURT), TRUE).render(MOUNT_POSES[0])
+    router = start_router(port)
+    client = BusClient(port)
+    stop = threading.Event()
+
+    def camera() -> None:  # the camera stage's stream, 10 Hz
+        seq = 0
+        while not stop.wait(0.1):
+            header = Header.now("robot1", seq, "camera")
+            header.valid = True
+            frame = Frame(header=header, width=640, height=480, encoding="bgr8", data=image.tobytes())
+            client.put_raw("camera/frame", codec.encode(frame))
+            seq += 1
+
+    streamer = threading.Thread(target=camera, daemon=True)
+    streamer.start()
+    try:
+        done = subprocess.run([*PYTHON, "calibrate", "mount", "--court", COURT, "--camera", str(tmp_path / "cam.json"),
+                               "--pose", ",".join(str(v) for v in MOUNT_POSES[0]), "--live", "--live-frames", "3",
+                               "--save", str(tmp_path / "live"), "--config", str(config),
+                               "--out", str(tmp_path / "mounted.json")],
+                              capture_output=True, text=True, timeout=180)
+    finally:
+        stop.set()
+        streamer.join(2.0)
+        client.close()
+        router.stop()
+    assert done.returncode == 0, done.stderr
+    assert len(list((tmp_path / "live").glob("live*.png"))) == 3
+    fitted = load_camera(tmp_path / "mounted.json")
+    assert fitted.mount.height == pytest.approx(TRUE.mount.height, abs=0.01)
+    assert math.degrees(abs(fitted.mount.pitch - TRUE.mount.pitch)) <= 0.3
