@@ -70,7 +70,8 @@ def render_board(camera: CameraModel, cols: int, rows: int, square_m: float, rve
 
 
 def board_pose_looking_at(distance_m: float, tilt_x_rad: float, tilt_y_rad: float, spin_rad: float,
-                          centre_offset: Vector, cols: int, rows: int, square_m: float) -> tuple[np.ndarray, np.ndarray]:
+                          centre_offset: Vector, cols: int, rows: int,
+                          square_m: float) -> tuple[np.ndarray, np.ndarray]:
     """(rvec, tvec) of a board whose centre sits `distance_m` in front of the camera (shifted by
     `centre_offset` metres in x, y), tilted about its own x and y axes and spun about its normal."""
     import cv2

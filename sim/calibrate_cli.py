@@ -108,7 +108,8 @@ def _mount(args: argparse.Namespace) -> int:
         except (ValueError, OSError) as exc:
             return _fail(_one_line(exc))
     if len(args.mount_pose) != len(args.mount_frames):
-        return _fail(f"{len(args.mount_pose)} --pose and {len(args.mount_frames)} --frames: give one --frames per --pose")
+        return _fail(f"{len(args.mount_pose)} --pose and {len(args.mount_frames)} --frames: "
+                     "give one --frames per --pose")
     try:
         court = load_court(args.mount_court)
         camera = load_camera(args.mount_camera)

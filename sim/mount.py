@@ -19,7 +19,7 @@ from typing import Optional, Sequence
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from courtloc.sim.calibrate import (PARAMETERS, CalibrationOptions, CalibrationResult, DotFrames,
+from courtloc.sim.calibrate import (CalibrationOptions, DotFrames,
                                     _line_residuals, _subset, calibrate, match_edges)
 from courtloc.sim.camera import CameraModel
 from courtloc.sim.court import Court
@@ -79,7 +79,8 @@ class MountResult(BaseModel):
         for name in MOUNT_PARAMETERS:
             unit, k = UNITS[name]
             digits = 4 if unit == "m" else 3
-            out.append(f"{name:<10} {values[name] * k:+.{digits}f} +- {self.sigma.get(name, math.nan) * k:.{digits}f} {unit}")
+            sigma = self.sigma.get(name, math.nan) * k
+            out.append(f"{name:<10} {values[name] * k:+.{digits}f} +- {sigma:.{digits}f} {unit}")
         out.append(f"residual px: median {self.residual_px_median:.3f}  p95 {self.residual_px_p95:.3f}")
         return "\n".join(out)
 

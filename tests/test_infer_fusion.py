@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -66,7 +65,8 @@ enabled = true
 
         # The lens is covered: no hits. Vision alone would answer no_hits; the odometry says "not moved".
         header = Header.now("robot1", 2, "camera").forwarded("preprocess", valid=True)
-        blind = Edges(header=header, width=640, height=480, crop_top=0, n_hits=0, hits=hits_to_bytes(frames.hits[0][:0]))
+        blind = Edges(header=header, width=640, height=480, crop_top=0, n_hits=0,
+                      hits=hits_to_bytes(frames.hits[0][:0]))
         client.put_raw("preprocess/edges", codec.encode(blind))
         bridged = client.wait_for("infer/pose", lambda p: p.header.seq == 2)
         assert bridged.header.valid, bridged.reason
