@@ -10,13 +10,16 @@ fused) use the same frames, side by side.
 
 Keys: `error_growth_m` = worst position error of the reported pose during the blackout minus the mean
 error in the second before it; `valid_fraction_blackout`; `max_valid_error_m` (worst error of a pose
-reported VALID, the number that must stay small); mean / p95 error over frames with vision.
+reported VALID, the number that must stay small); mean / p95 error over frames with vision;
+`track_ms_median` (wall time of one tracked frame, hits in, pose out; odometry offered before it not
+counted: compare the two runs of one invocation, not across machines).
 """
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -81,17 +84,20 @@ def run_scenario(scenario: str, package: Path | None = None, speed: float = 1.5,
     runs = {}
     for name, fusion in (("vision_only", None),
                          ("fused", OdometryFusion(fusion_config or FusionConfig(enabled=True)))):
-        state, delivered, rows = None, 0, []
+        state, delivered, rows, cost_ms = None, 0, [], []
         for t, hits, dark in zip(times, frames, blind):
             # Odometry that reached the host by the time this frame is processed (one frame period later).
             now = float(t) + 1.0 / fps
             while fusion is not None and delivered < len(messages) and messages[delivered].at_s <= now:
                 fusion.offer(messages[delivered].message, now)
                 delivered += 1
+            start = time.perf_counter()
             pred, state, _ = fused_track(predictor, fusion, hits, 640, 480, state, float(t))
+            cost_ms.append((time.perf_counter() - start) * 1e3)
             truth = truth_at(float(t))
             rows.append((float(t), dark, bool(pred.valid), math.hypot(pred.x - truth[0], pred.y - truth[1])))
         runs[name] = _summary(rows, blackout_at, scenario, kidnap_at)
+        runs[name]["track_ms_median"] = float(np.median(cost_ms))  # per frame, hits in, pose out
         if detail:
             runs[name]["rows"] = rows
         if fusion is not None:
