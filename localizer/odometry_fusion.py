@@ -16,7 +16,9 @@ at the frame's time). Vision fixes then correct it exactly as before (gate, fuse
   the source's slip flag get `slip_inflation` times the noise. Each vision fix that follows another
   within `learn_window_s` measures the gyro bias (yaw turned by odometry minus yaw turned by vision, per
   second) and the wheel scale (distance by vision over distance by odometry); both are learnt by a
-  scalar Kalman filter and bounded (`max_gyro_bias_rad_s`, `scale_bounds`).
+  scalar Kalman filter and bounded (`max_gyro_bias_rad_s`, `scale_bounds`). Slip the source does not
+  flag is bounded by physics: a wheel speed rising faster than `max_accel_m_s2` (+ `speed_margin_m_s`)
+  allows is cut to that, the window's step shortened accordingly (`fusion.slip_limited`).
 - **Bad odometry** is rejected with a counted reason before it reaches the buffer: not finite,
   invalid, from another host's clock, from the future or too old, a stalled source clock, a jump (more
   speed or turn rate than a robot has). A saturated gyro or a slip flag down-weights.
@@ -58,6 +60,9 @@ class FusionConfig(BaseModel):
     yaw_noise_per_rad: float = Field(0.02, ge=0, description="yaw std per radian turned")
     yaw_noise_floor_rad: float = Field(0.0005, ge=0)
     slip_inflation: float = Field(4.0, ge=1.0, description="noise factor while the source flags slip")
+    max_accel_m_s2: float = Field(3.0, gt=0, description="the robot cannot speed up faster: wheel speed that "
+                                  "does is slip, and the step is shortened to this")
+    speed_margin_m_s: float = Field(0.1, ge=0, description="wheel speed noise allowed on top of max_accel")
     gyro_bias_sigma_rad_s: float = Field(0.01, ge=0, description="prior std of the gyro bias")
     max_gyro_bias_rad_s: float = Field(0.05, ge=0, description="the learnt bias is clipped to this")
     scale_sigma: float = Field(0.05, ge=0, description="prior std of the wheel scale (1 = exact)")
@@ -177,7 +182,9 @@ class OdometryFusion:
         self.rejected: Counter[str] = Counter()
         self.counts: Counter[str] = Counter()
         self.last_fix: Optional[tuple[float, np.ndarray]] = None  # (t, pose) of the last vision fix
-        self._last: Optional[_Sample] = None
+        self._last: Optional[_Sample] = None  # the last accepted sample as received
+        self._corrected: Optional[_Sample] = None  # the same with slip limited (what the buffer holds)
+        self._speed_ref = 0.0  # the speed the next window may exceed only by what the robot can accelerate
         self._predicted_t: Optional[float] = None  # the frame time the last prediction used odometry for
         self._anchor: Optional[tuple[float, np.ndarray]] = None  # first fix of the pair that teaches bias/scale
         self.suspect = False  # vision disagrees with odometry (kidnap, or a wrong track): invalid until recovered
@@ -196,13 +203,40 @@ class OdometryFusion:
             self.counts["gyro_saturated"] += 1
         if message.wheel_slip:
             self.counts["wheel_slip"] += 1
-        sample = _Sample(t=message.header.capture_mono_ns * 1e-9, epoch=message.epoch,
-                         pose=(message.odom_x_m, message.odom_y_m, message.odom_yaw_rad),
-                         slip=message.wheel_slip or message.gyro_saturated, source_ns=message.source_time_ns,
-                         seq=message.source_seq)
-        self.buffer.add(sample)
-        self._last = sample
+        raw = _Sample(t=message.header.capture_mono_ns * 1e-9, epoch=message.epoch,
+                      pose=(message.odom_x_m, message.odom_y_m, message.odom_yaw_rad),
+                      slip=message.wheel_slip or message.gyro_saturated, source_ns=message.source_time_ns,
+                      seq=message.source_seq)
+        self.buffer.add(self._limit_slip(raw, message))
+        self._last = raw
         return True
+
+    def _limit_slip(self, raw: _Sample, message: Odometry) -> _Sample:
+        """The sample with its step shortened to what the robot can accelerate to (unflagged slip bounded).
+
+        A wheel that slips over-reads its speed from one window to the next faster than the robot can
+        accelerate: the step is scaled down to `speed reference + max_accel * window + margin`, and the
+        buffer keeps its own corrected dead reckoning (the raw one would carry the slip on)."""
+        cfg = self.config
+        last, corrected = self._last, self._corrected
+        speed = math.hypot(message.vx_m_s, message.vy_m_s)
+        if last is None or corrected is None or raw.epoch != last.epoch:
+            self._corrected, self._speed_ref = raw, speed
+            return raw
+        dt = max(raw.t - last.t, message.window_s)
+        # The reference follows a falling speed at once and a rising one at most at max_accel; the
+        # margin (wheel speed noise) is allowed on top but never accumulates into the reference.
+        self._speed_ref = min(speed, self._speed_ref + cfg.max_accel_m_s2 * dt)
+        allowed = self._speed_ref + cfg.speed_margin_m_s
+        factor = 1.0
+        if speed > allowed:
+            factor = allowed / speed
+            self.counts["slip_limited"] += 1
+        step_x, step_y = raw.pose[0] - last.pose[0], raw.pose[1] - last.pose[1]
+        pose = (corrected.pose[0] + factor * step_x, corrected.pose[1] + factor * step_y, raw.pose[2])
+        self._corrected = _Sample(t=raw.t, epoch=raw.epoch, pose=pose, slip=raw.slip or factor < 1.0,
+                                  source_ns=raw.source_ns, seq=raw.seq)
+        return self._corrected
 
     def _check(self, m: Odometry, now_s: float) -> str:
         cfg = self.config
@@ -230,7 +264,7 @@ class OdometryFusion:
             if moved > cfg.max_speed_m_s * dt + 0.01 or turned > cfg.max_yaw_rate_rad_s * dt + 0.01:
                 # A jump in the cumulative pose: nothing before it can be differenced with anything after.
                 self.buffer.clear()
-                self._last = None
+                self._last = self._corrected = None
                 return "jump"
         return ""
 

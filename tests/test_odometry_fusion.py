@@ -141,3 +141,17 @@ def test_a_kidnap_is_noticed_and_never_reported_valid_while_wrong() -> None:
     assert fused["valid_and_wrong_after_kidnap"] == 0
     assert fused["recovered_after_s"] <= 1.0  # valid again, and right, once vision and odometry agree
     assert fused["fusion"]["fusion.recovered"] == 1
+
+
+def test_unflagged_slip_is_cut_to_what_the_robot_can_accelerate() -> None:
+    fusion = OdometryFusion(FusionConfig(enabled=True, max_accel_m_s2=3.0, speed_margin_m_s=0.1))
+    x, t = 0.0, 0.0
+    for i in range(60):  # 1 m/s; then 0.15 s of wheels reading 1.4 m/s (slip); then 1 m/s again
+        speed = 1.4 if 30 <= i < 45 else 1.0
+        t, x = i * 0.01, x + speed * 0.01
+        assert fusion.offer(odometry(t, x=x, seq=i, vx_m_s=speed, window_s=0.01), now_s=t)
+    delta = fusion.buffer.delta(0.0, t, 0.0)
+    # Raw: 0.59 m + 0.06 m of slip. The reference speed may rise 0.03 m/s per 10 ms window, plus the 0.1 m/s
+    # margin on top: sum over k = 1..15 of min(0.4, 0.1 + 0.03 k) * 0.01 s = 0.0465 m of the 0.06 m get through.
+    assert delta is not None and delta.dx == pytest.approx(0.59 + 0.0465, abs=1e-9)
+    assert fusion.counts["slip_limited"] == 9  # until the reference has risen to within the margin of 1.4
