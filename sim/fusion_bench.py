@@ -53,12 +53,12 @@ def run_scenario(scenario: str, package: Path | None = None, speed: float = 1.5,
     """Both runs' summaries; `detail` adds every frame's (t, blind, valid, error) under `rows`."""
     from courtloc.localizer.odometry_fusion import FusionConfig, OdometryFusion, fused_track
     from courtloc.localizer.predictor import load_predictor
-    from courtloc.services.infer.service import bundled_default
+    from courtloc.localizer.eval import default_model_path
     from courtloc.sim.edges import scan_hits
     from courtloc.sim.odometry import OdometrySimConfig, OdometrySimulator
     from courtloc.sim.render import Renderer
 
-    predictor = load_predictor(package or bundled_default())
+    predictor = load_predictor(package or default_model_path())
     renderer = Renderer(predictor.package.court, predictor.package.camera)
     trajectory = loop_trajectory(speed)
     messages = list(OdometrySimulator(trajectory, OdometrySimConfig(), seed=seed).stream(duration + 0.5))
