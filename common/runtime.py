@@ -33,6 +33,8 @@ class Service:
     """Base of every stage process. Subclasses set `name` (a key of SERVICES)."""
 
     name: ClassVar[str]
+    # Inputs that only feed state (e.g. odometry into infer's filter): not timed as the stage's latency.
+    side_inputs: ClassVar[frozenset[str]] = frozenset()
 
     def __init__(self, robot_id: str, zenoh_config: ZenohConfig) -> None:
         self.robot_id = robot_id
@@ -200,7 +202,8 @@ class Service:
             except Exception as exc:  # one bad input must not kill the stage, nor flood the log
                 self.reject(delivery.topic_path, "handler_error", f"{type(exc).__name__}: {exc}", exc_info=True)
                 continue
-            self.record_latency(time.perf_counter_ns() - start)
+            if delivery.topic_path not in self.side_inputs:
+                self.record_latency(time.perf_counter_ns() - start)
 
     def _health_loop(self) -> None:
         while not self.stop_event.wait(HEALTH_PERIOD_S):

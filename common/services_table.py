@@ -11,7 +11,7 @@ from typing import Literal
 
 from courtloc.common.control import ModelReply, ModelRequest
 from courtloc.common.limits import MAX_CHUNK_BYTES, MAX_HITS_BYTES, MAX_IMAGE_BYTES, max_payload_bytes
-from courtloc.common.messages import Edges, Frame, GroundTruth, Health, Pose, ShotSolution
+from courtloc.common.messages import Edges, Frame, GroundTruth, Health, Odometry, Pose, ShotSolution
 from pydantic import BaseModel
 
 ROOT = "courtloc"
@@ -94,6 +94,10 @@ _TOPICS: tuple[Topic, ...] = (
     _topic("infer", "shadow_pose", Pose, 30.0, "data_low", 150.0, "pose of a candidate model in shadow mode"),
     _topic("shooter_bridge", "solution", ShotSolution, 30.0, "real_time", 200.0,
            "distance, bearing and RPM sent to the MCU"),
+    # Odometry: the bridge relays the MCU's wheel odometry and gyro; another source (a ROS bridge, a
+    # tracking camera) may publish the same message on this key instead.
+    _topic("shooter_bridge", "odometry", Odometry, 100.0, "real_time", 100.0,
+           "wheel odometry and gyro yaw rate, body frame, on this host's clock"),
 )
 
 SERVICES: dict[str, ServiceSpec] = {
@@ -102,8 +106,10 @@ SERVICES: dict[str, ServiceSpec] = {
         ServiceSpec("camera", (), ("camera/frame", "camera/ground_truth"), "frames from a device, file, folder or the sim"),
         ServiceSpec("preprocess", ("camera/frame",), ("preprocess/edges", "preprocess/preview"),
                     "HSV white mask + radial scan"),
-        ServiceSpec("infer", ("preprocess/edges",), ("infer/pose", "infer/shadow_pose"), "edge hits -> pose"),
-        ServiceSpec("shooter_bridge", ("infer/pose",), ("shooter_bridge/solution",), "pose -> RPM -> MCU"),
+        ServiceSpec("infer", ("preprocess/edges", "shooter_bridge/odometry"), ("infer/pose", "infer/shadow_pose"),
+                    "edge hits (+ odometry when infer.fusion is on) -> pose"),
+        ServiceSpec("shooter_bridge", ("infer/pose",), ("shooter_bridge/solution", "shooter_bridge/odometry"),
+                    "pose -> RPM -> MCU; MCU odometry -> bus"),
     )
 }
 

@@ -9,7 +9,7 @@ from types import ModuleType
 
 from courtloc import bench_fuzz, bench_pipeline, bench_soak
 from courtloc.lab import bench_infer, bench_localize, bench_preprocess, model_bench
-from courtloc.sim import bench_render
+from courtloc.sim import bench_render, fusion_bench
 
 BENCHES: dict[str, ModuleType] = {
     "pipeline": bench_pipeline,
@@ -20,6 +20,7 @@ BENCHES: dict[str, ModuleType] = {
     "soak": bench_soak,
     "fuzz": bench_fuzz,
     "infer": bench_infer,
+    "fusion": fusion_bench,
 }
 
 

@@ -7,7 +7,9 @@ white edge of the court whose normal faces away from the scan origin. The fit al
 2. with the matches fixed, solve for the camera by robust least squares on the point-to-edge-line
    distance in pixels (the edge's tangent is projected too, so sliding along an edge costs nothing).
 Parameters: focal length (fx = fy), height, pitch, roll, mount x/y offsets, mount yaw; optionally a
-court scale. The principal point stays at the image centre.
+court scale. The principal point stays at the image centre. With `keep_intrinsics` the starting
+camera's intrinsics (fx, fy, principal point, distortion from a chessboard calibration) are kept and
+only the parameters in `free` are fitted (the mount calibration fits the mount alone).
 """
 from __future__ import annotations
 
@@ -58,6 +60,7 @@ class CalibrationResult(BaseModel):
     residual_floor_m_median: float
     residual_floor_m_p95: float
     iterations: int
+    parameter_sigma: dict[str, float] = Field(default_factory=dict)
 
     def report(self) -> str:
         c, m = self.camera, self.camera.mount
@@ -81,6 +84,14 @@ class CalibrationOptions(BaseModel):
     iterations: int = Field(12, ge=1, le=100)
     edge_spacing_m: float = Field(0.01, gt=0)
     inlier_px: float = Field(3.0, gt=0, description="robust loss scale and inlier threshold, pixels")
+    keep_intrinsics: bool = Field(False, description="keep the starting camera's fx, fy, cx, cy and distortion")
+    free: tuple[str, ...] = Field(PARAMETERS, description="camera parameters fitted (the others keep their start)")
+
+    def free_mask(self) -> np.ndarray:
+        unknown = set(self.free) - set(PARAMETERS)
+        if unknown:
+            raise ValueError(f"unknown calibration parameters {sorted(unknown)}; known: {PARAMETERS}")
+        return np.array([p in self.free and not (p == "f" and self.keep_intrinsics) for p in PARAMETERS])
 
 
 # ---- data ------------------------------------------------------------------------------------------
@@ -127,10 +138,11 @@ def _robot_to_court(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
                             s * points[:, 0] + c * points[:, 1] + pose[:, 1]])
 
 
-def camera_from_vector(theta: Sequence[float], template: CameraModel) -> CameraModel:
+def camera_from_vector(theta: Sequence[float], template: CameraModel, keep_focal: bool = False) -> CameraModel:
     f, height, pitch, roll, mx, my, myaw = theta[:7]
     data = template.model_dump()
-    data.update(fx=float(f), fy=float(f))
+    if not keep_focal:
+        data.update(fx=float(f), fy=float(f))
     data["mount"].update(height=float(height), pitch=float(pitch), roll=float(roll), x=float(mx), y=float(my),
                          yaw=float(myaw))
     return CameraModel.model_validate(data)
@@ -166,9 +178,13 @@ def match_edges(cam: CameraModel, dots: DotFrames, edges: np.ndarray, normals: n
     return match, dist
 
 
-def _unpack(theta: np.ndarray, options: CalibrationOptions) -> tuple[np.ndarray, float, float]:
-    """Free parameters -> (7 camera parameters, court scale, edge offset along the white->not-white normal)."""
-    k = 7
+def _unpack(theta: np.ndarray, options: CalibrationOptions, base: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """Free parameters -> (7 camera parameters, court scale, edge offset along the white->not-white normal);
+    the camera parameters not fitted come from `base`."""
+    mask = options.free_mask()
+    k = int(mask.sum())
+    camera = base.astype(float).copy()
+    camera[mask] = theta[:k]
     scale = 1.0
     bleed = 0.0
     if options.fit_scale:
@@ -176,15 +192,15 @@ def _unpack(theta: np.ndarray, options: CalibrationOptions) -> tuple[np.ndarray,
         k += 1
     if options.fit_line_width:
         bleed = float(theta[k])
-    return theta[:7], scale, bleed
+    return camera, scale, bleed
 
 
 def _line_residuals(theta: np.ndarray, template: CameraModel, dots: DotFrames, points: np.ndarray,
                     normals: np.ndarray, options: CalibrationOptions) -> np.ndarray:
     """Pixel distance of each dot from the projected edge line through its matched point."""
-    cam_theta, scale, bleed = _unpack(theta, options)
+    cam_theta, scale, bleed = _unpack(theta, options, vector_from_camera(template))
     try:
-        cam = camera_from_vector(cam_theta, template)
+        cam = camera_from_vector(cam_theta, template, options.keep_intrinsics)
     except ValueError:
         return np.full(len(points), 1e3)
     # A bleed moves every white edge outwards (a line gets 2 * bleed wider); scale stretches the court.
@@ -207,8 +223,14 @@ def _subset(dots: DotFrames, use: np.ndarray) -> DotFrames:
 def calibrate(court: Court, dots: DotFrames, initial: CameraModel, options: CalibrationOptions) -> CalibrationResult:
     edges, normals = court.white_edges(options.edge_spacing_m)
     tree = cKDTree(edges)
-    template = initial.model_copy(update={"cx": (dots.width - 1) / 2.0, "cy": (dots.height - 1) / 2.0})
-    theta = vector_from_camera(template)
+    if options.keep_intrinsics:
+        if (initial.width, initial.height) != (dots.width, dots.height):
+            raise ValueError(f"the camera is {initial.width}x{initial.height}, the frames {dots.width}x{dots.height}")
+        template = initial
+    else:
+        template = initial.model_copy(update={"cx": (dots.width - 1) / 2.0, "cy": (dots.height - 1) / 2.0})
+    base = vector_from_camera(template)
+    theta = base[options.free_mask()]
     if options.fit_scale:
         theta = np.append(theta, 1.0)
     if options.fit_line_width:
@@ -219,8 +241,9 @@ def calibrate(court: Court, dots: DotFrames, initial: CameraModel, options: Cali
     for it in range(options.iterations):
         iterations = it + 1
         f_scale = float(schedule[min(it, len(schedule) - 1)])
-        cam_theta, scale, bleed = _unpack(theta, options)
-        match, _ = match_edges(camera_from_vector(cam_theta, template), dots, edges, normals, tree, scale)
+        cam_theta, scale, bleed = _unpack(theta, options, base)
+        match, _ = match_edges(camera_from_vector(cam_theta, template, options.keep_intrinsics), dots, edges,
+                               normals, tree, scale)
         use = match >= 0
         before = theta.copy()
         fit = least_squares(
@@ -229,16 +252,37 @@ def calibrate(court: Court, dots: DotFrames, initial: CameraModel, options: Cali
         )
         theta = fit.x
         step = np.abs(theta - before)
-        log.info("iteration %d: f %.2f h %.4f pitch %.4f, median |r| %.3f px", it + 1, theta[0], theta[1], theta[2],
+        full = _unpack(theta, options, base)[0]
+        log.info("iteration %d: f %.2f h %.4f pitch %.4f, median |r| %.3f px", it + 1, full[0], full[1], full[2],
                  float(np.median(np.abs(fit.fun))))
-        if it >= len(schedule) and step[0] < 0.01 and step[1] < 1e-5 and step[2] < 1e-6:
+        if it >= len(schedule) and _converged(step, options):
             break
-    return _summarise(dots, theta, template, edges, normals, tree, options, iterations)
+    result = _summarise(dots, theta, template, edges, normals, tree, options, iterations)
+    result.parameter_sigma = _sigmas(fit.jac, fit.fun, options)
+    return result
+
+
+def _sigmas(jac: np.ndarray, residuals: np.ndarray, options: CalibrationOptions) -> dict[str, float]:
+    """1-sigma of each fitted camera parameter from the last Gauss-Newton step: sigma^2 (J^T J)^-1, with
+    sigma the residuals' robust spread (1.4826 MAD), as if every residual were independent."""
+    names = [p for p, free in zip(PARAMETERS, options.free_mask()) if free]
+    spread = 1.4826 * float(np.median(np.abs(residuals - np.median(residuals))))
+    try:
+        cov = np.linalg.inv(jac.T @ jac) * spread ** 2
+    except np.linalg.LinAlgError:
+        return {name: math.inf for name in names}
+    return {name: float(math.sqrt(max(cov[i, i], 0.0))) for i, name in enumerate(names)}
+
+
+def _converged(step: np.ndarray, options: CalibrationOptions) -> bool:
+    """The last step moved f < 0.01 px, height < 10 um and pitch < 1 urad (the others follow them)."""
+    limits = np.array([0.01, 1e-5, 1e-6, np.inf, np.inf, np.inf, np.inf])[options.free_mask()]
+    return bool(np.all(step[:len(limits)] < limits))
 
 
 def _summarise(dots, theta, template, edges, normals, tree, options, iterations) -> CalibrationResult:
-    cam_theta, scale, bleed = _unpack(theta, options)
-    cam = camera_from_vector(cam_theta, template)
+    cam_theta, scale, bleed = _unpack(theta, options, vector_from_camera(template))
+    cam = camera_from_vector(cam_theta, template, options.keep_intrinsics)
     match, _ = match_edges(cam, dots, edges, normals, tree, scale)
     use = match >= 0
     sub = _subset(dots, use)

@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from courtloc.localizer.odometry_fusion import OdometryFusion, fused_track
 from courtloc.localizer.predictor import Prediction, Predictor
 
 
@@ -26,6 +27,7 @@ class Tracker:
     previous: tuple[float, float, float] | None = None
     lost_frames: int = 0
     motion: object | None = None
+    odometry_reason: str = ""
 
     def update(self, x: float, y: float, yaw: float | None, valid: bool, trackable: bool) -> None:
         if yaw is not None and (valid or trackable):
@@ -37,12 +39,15 @@ class Tracker:
             self.previous = None
 
     def step(self, predictor: Predictor, hits: np.ndarray, width: int, height: int,
-             t: float | None) -> Prediction:
+             t: float | None, fusion: OdometryFusion | None = None) -> Prediction:
         """Localise one frame from what this tracker knows, and learn from the answer.
 
         `t` is the frame's capture time in seconds on one clock (the filter predicts over the real interval).
+        With `fusion` (a geometric model's serving tracker) odometry predicts between the frames; why
+        odometry made a frame invalid is left in `odometry_reason`.
         """
-        prediction, self.motion = predictor.track(hits, width, height, self.motion, t)
+        prediction, self.motion, self.odometry_reason = fused_track(predictor, fusion, hits, width, height,
+                                                                    self.motion, t)
         self.update(prediction.x, prediction.y, prediction.yaw, prediction.valid, prediction.trackable)
         return prediction
 

@@ -1,4 +1,4 @@
-"""CLI of the digital twin: `courtloc calibrate` and the `courtloc dataset` group (`dataset synth`).
+"""CLI of the digital twin: `courtloc calibrate` (+ `intrinsics`, `mount`) and the `courtloc dataset` group.
 
 Extending `courtloc dataset`: add a module name to DATASET_COMMAND_MODULES; the module exposes
 `register_dataset(dataset_subparsers)` and adds its sub-command there with `set_defaults(func=handler)`,
@@ -21,12 +21,14 @@ from courtloc.lab.calibrate import (
     load_dot_frames,
     nominal_camera,
 )
+from courtloc.lab.calibrate_cli import register_calibrate_verbs
 from courtloc.sim.labels import lag_corrected, read_pose_csv
 from courtloc.sim.render import RenderOptions
 from courtloc.sim.synth import SynthConfig, synth
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
 
+from courtloc.cli_errors import UsageError
 from courtloc.cliargs import nonnegative_int, positive_int
 
 # Modules adding sub-commands to `courtloc dataset` (this module adds `synth` itself).
@@ -46,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 # ---- dataset synth -----------------------------------------------------------------------------------
 def _register_synth(dataset_sub: argparse._SubParsersAction) -> None:
     p = dataset_sub.add_parser("synth", help="render a labelled synthetic dataset from the digital twin")
-    p.add_argument("--court", required=True, help="court name (see sim/courts) or JSON path")
+    p.add_argument("--court", required=True, help="court name (see world/courts) or JSON path")
     p.add_argument("--camera", default=None, help="camera name or JSON path (default: the court's camera)")
     p.add_argument("--n", type=positive_int, required=True, help="number of frames")
     p.add_argument("--out", required=True, help="output directory (resumable: existing frames are kept)")
@@ -80,10 +82,11 @@ def _synth(args: argparse.Namespace) -> int:
 
 # ---- calibrate ---------------------------------------------------------------------------------------
 def _register_calibrate(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("calibrate", help="fit the camera to labelled edge-dot images (seed format)")
-    p.add_argument("--data", required=True, help="directory of the images named in the CSV")
-    p.add_argument("--csv", required=True, help="pose CSV: image_filename, x, y, orientation_z")
-    p.add_argument("--court", required=True, help="court name or JSON path")
+    p = sub.add_parser("calibrate", help="fit the camera: to labelled edge-dot images (seed format, the options "
+                                         "below), or `calibrate intrinsics` / `calibrate mount` for a new robot")
+    p.add_argument("--data", help="directory of the images named in the CSV")
+    p.add_argument("--csv", help="pose CSV: image_filename, x, y, orientation_z")
+    p.add_argument("--court", help="court name or JSON path")
     p.add_argument("--init", default=None, help="starting camera (name or JSON); default: a rough nominal guess")
     p.add_argument("--frames", type=positive_int, default=300, help="frames used, spread evenly over the CSV")
     p.add_argument("--lag", type=float, default=None, help="image->label lag in seconds (default: the seed's 0.0147)")
@@ -95,8 +98,13 @@ def _register_calibrate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default=None, help="write the fitted camera JSON here")
     p.set_defaults(func=_calibrate)
 
+    register_calibrate_verbs(p.add_subparsers(dest="calibrate_command", metavar="{intrinsics,mount}"))
+
 
 def _calibrate(args: argparse.Namespace) -> int:
+    missing = [f"--{name}" for name in ("data", "csv", "court") if not getattr(args, name)]
+    if missing:
+        raise UsageError(f"calibrate needs {', '.join(missing)} (or a sub-command: intrinsics, mount)")
     lag = SEED_LAG_S if args.lag is None else args.lag
     # A bad file or name raises (ValueError, OSError): one line from courtloc.cli.
     court = load_court(args.court)

@@ -11,7 +11,7 @@ import bisect
 import csv
 import math
 from pathlib import Path
-from typing import Sequence
+from typing import Protocol, Sequence
 
 import numpy as np
 from courtloc.sim.labels import orientation_z_to_yaw
@@ -19,6 +19,10 @@ from courtloc.world.angles import wrap_angle
 from courtloc.world.court import Court
 
 Pose = tuple[float, float, float]
+
+
+class Trajectory(Protocol):
+    def pose_at(self, t: float) -> Pose: ...
 
 
 class _Legs:

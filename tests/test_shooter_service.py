@@ -115,3 +115,46 @@ table = "table.csv"
     bridge.wait_line("appears twice")
     assert bridge.process is not None and bridge.process.wait(20) == 2
     assert "table.csv" in bridge.output()
+
+
+def test_bridge_process_publishes_mcu_odometry_on_the_bus(tmp_path: Path, mcu: FakeMcu) -> None:
+    import time
+
+    from courtloc.services.shooter_bridge.protocol import McuFrame, OdometrySample, OdomFlag, encode, encode_odometry
+
+    port = free_port()
+    config = write_config(tmp_path / "deploy.toml", port, f"""
+[shooter_bridge.target]
+ring = [{RING[0]}, {RING[1]}, {RING[2]}]
+[shooter_bridge.link]
+port = "{mcu.slave_path}"
+""")
+    router = start_router(port)
+    client = BusClient(port)
+    client.subscribe("shooter_bridge/odometry")
+    client.subscribe("shooter_bridge/health")
+    bridge = start_stage("shooter_bridge", config)
+    try:
+        client.wait_alive("shooter_bridge")
+        mcu.next_frame(timeout=20.0)  # the link is open: bytes written now reach the bridge
+        client.wait_subscribed("shooter_bridge/odometry")
+        t0_us = time.monotonic_ns() // 1000
+        for i in range(20):  # the MCU's 100 Hz stream, 1 m/s straight ahead, paced like the real one
+            sample = OdometrySample(seq=i, mcu_time_us=t0_us + 10_000 * i, vx_m_s=1.0, vy_m_s=0.0,
+                                    wz_wheels_rad_s=0.0, wz_gyro_rad_s=0.0,
+                                    flags=OdomFlag.WHEELS_VALID | OdomFlag.GYRO_VALID)
+            os.write(mcu.master, encode_odometry(sample))
+            time.sleep(0.01)
+        os.write(mcu.master, encode(McuFrame(seq=99, command=Command.ODOMETRY, extra=b"\x01\x02")))  # truncated
+        last = client.wait_for("shooter_bridge/odometry", lambda m: m.source_seq == 19)
+        assert last.header.valid and last.source == "mcu" and last.epoch == 0
+        assert last.odom_x_m == pytest.approx(0.19) and last.vx_m_s == 1.0
+        # On this host's clock, at or before the moment the bridge read it, within the freshness budget.
+        assert 0 <= last.received_mono_ns - last.header.capture_mono_ns <= 100e6
+        health = client.wait_for("shooter_bridge/health", lambda h: h.detail.get("mcu_bad_odometry", 0) >= 1)
+        assert health.detail["mcu_odometry_frames"] == 20 and bridge.alive()
+    finally:
+        client.close()
+        code = bridge.stop()
+        router.stop()
+    assert code == 0, bridge.output()

@@ -5,6 +5,7 @@ import os
 from pathlib import Path
 from typing import Literal
 
+from courtloc.localizer.odometry_fusion import FusionConfig
 from pydantic import BaseModel, ConfigDict, Field
 
 
@@ -33,3 +34,5 @@ class InferConfig(BaseModel):
     require_signature: bool = Field(default=False, description="refuse pushed models without a valid signature")
     signing_public_key: Path | None = None
     max_upload_mb: float = Field(default=2048.0, gt=0)
+    fusion: FusionConfig = Field(default_factory=FusionConfig,
+                                 description="odometry fusion in the tracker (off: shooter_bridge/odometry is ignored)")

@@ -8,10 +8,12 @@ import numpy as np
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.control import ModelReply
 from courtloc.common.inbox import Delivery
-from courtloc.common.messages import Edges, Pose
+from courtloc.common.messages import Edges, Odometry, Pose
 from courtloc.common.payloads import edges_hits
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Control, Topic
+from courtloc.localizer.odometry_fusion import OdometryFusion, pose_covariance
+from courtloc.localizer.predictor import GeometricPredictor
 from courtloc.localizer.tracking import Tracker
 from courtloc.models import bundled_package
 from courtloc.services.infer.config import InferConfig
@@ -28,6 +30,7 @@ DEFAULT_MODEL_NAME = "default"
 
 class InferService(Service):
     name = "infer"
+    side_inputs = frozenset({"shooter_bridge/odometry"})
 
     def __init__(self, robot_id: str, zenoh_config: ZenohConfig, config: InferConfig) -> None:
         super().__init__(robot_id, zenoh_config)
@@ -37,6 +40,8 @@ class InferService(Service):
         self.active: LoadedModel | None = None
         self.shadow: ShadowRunner | None = None
         self.tracker = Tracker()
+        # Odometry fusion (localizer/odometry_fusion.py): None unless configured, then poses are as before.
+        self.fusion = OdometryFusion(config.fusion) if config.fusion.enabled else None
         self.swaps = 0
         self._control = ModelControl(self, Uploads(self.store, int(config.max_upload_mb * 2**20)))
 
@@ -70,7 +75,11 @@ class InferService(Service):
             return load_model(self.store.get(target), self.config, golden=None)
 
     # ---- the hot path --------------------------------------------------------------------
-    def on_message(self, topic: Topic, message: Edges, delivery: Delivery) -> None:
+    def on_message(self, topic: Topic, message: Edges | Odometry, delivery: Delivery) -> None:
+        if isinstance(message, Odometry):  # fusion hook: odometry only fills the fusion's buffer
+            if self.fusion is not None:
+                self.fusion.offer(message, time.monotonic())
+            return
         fresh = self.is_fresh(message.header, topic)
         try:
             hits = edges_hits(message)
@@ -100,12 +109,19 @@ class InferService(Service):
         yaw: float | None = None
         quality = 0.0
         ok = False
-        if len(hits) == 0:
+        # Fusion hook: the serving tracker (never a shadow's) of a geometric model predicts with odometry,
+        # even through a blind frame.
+        fusion = self.fusion if tracker is self.tracker and isinstance(model.predictor, GeometricPredictor) else None
+        covariance: list[float] = []
+        fusion_reason = ""
+        if len(hits) == 0 and fusion is None:
             reason = "no_hits"
         else:
             # Capture times on the camera's monotonic clock: the filter predicts over the real interval.
             pred = tracker.step(model.predictor, hits, edges.width, edges.height,
-                                t=edges.header.capture_mono_ns * 1e-9)
+                                t=edges.header.capture_mono_ns * 1e-9, fusion=fusion)
+            fusion_reason = tracker.odometry_reason
+            covariance = pose_covariance(tracker.motion)
             x, y, yaw, quality = float(pred.x), float(pred.y), pred.yaw, float(pred.quality)
             finite = all(math.isfinite(v) for v in (x, y, *(() if yaw is None else (yaw,))))
             if not finite:
@@ -113,7 +129,7 @@ class InferService(Service):
             elif not is_on_court(model.court, x, y, self.config.on_court_margin_m):
                 reason = "off_court"
             elif not pred.valid:
-                reason = "low_quality"
+                reason = fusion_reason or ("no_hits" if len(hits) == 0 else "low_quality")
             ok = not reason
         if ok and not fresh:
             reason, ok = "stale_input", False
@@ -122,7 +138,7 @@ class InferService(Service):
         header = edges.header.forwarded(self.name, valid=ok)
         return Pose(header=header, x=x, y=y, yaw=None if yaw is None else float(yaw), quality=quality,
                     model_name=model.ref.name, model_version=model.ref.version,
-                    infer_ms=(time.perf_counter() - start) * 1e3, reason=reason)
+                    infer_ms=(time.perf_counter() - start) * 1e3, reason=reason, covariance=covariance)
 
     # ---- model control (the runtime's control thread) -------------------------------------------
     def on_control(self, control: Control, request: BaseModel) -> BaseModel:
@@ -175,4 +191,6 @@ class InferService(Service):
         detail: dict[str, float | int | str] = {"swaps": self.swaps}
         if model is not None:
             detail.update(model=model.ref.name, model_version=model.ref.version)
+        if self.fusion is not None:
+            detail.update(self.fusion.health())
         return detail

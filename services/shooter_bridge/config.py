@@ -5,6 +5,7 @@ from pathlib import Path
 from typing import Literal, Optional, Union
 
 from courtloc.common.config_loader import load_model, resolve_relative_paths
+from courtloc.services.shooter_bridge.odometry import OdometryConfig
 from courtloc.shot.ballistics import ShotModel
 from courtloc.shot.geometry import ShooterMount, ring_for
 from courtloc.shot.rpm import PriorSource, RpmSource, TableWatcher
@@ -120,6 +121,7 @@ class ShooterConfig(_Strict):
     rpm: RpmConfig = Field(default_factory=RpmConfig)
     policy: PolicyConfig = Field(default_factory=PolicyConfig)
     link: LinkConfig = Field(default_factory=LinkConfig)
+    odometry: OdometryConfig = Field(default_factory=OdometryConfig)
     decide_period_s: float = Field(0.05, gt=0, le=1.0, description="re-decide at least this often, so a pose "
                                    "that stops arriving turns into HOLD")
 

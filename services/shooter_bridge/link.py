@@ -4,12 +4,17 @@ One writer thread owns the port. `send()` only replaces the pending command and 
 the caller never blocks and never sees a serial error; a command replaced before it was written is
 counted, not queued (an old RPM is worth nothing). When nothing was written for `heartbeat_s`, a
 HEARTBEAT goes out. A write or open failure closes the port and retries after 0.1 s, 0.2 s, 0.4 s ...
-up to `reconnect_max_s`; a command queued while the port was away is dropped on reconnect. STATUS frames from the MCU are read between writes (at least once per
-heartbeat period) and handed to `on_status`.
+up to `reconnect_max_s`; a command queued while the port was away is dropped on reconnect.
+
+The thread sleeps in one select() on the port and a wake-up pipe, so frames from the MCU are read as
+soon as they arrive (their receive time is what maps the MCU's clock onto ours): STATUS frames go to
+`on_status`, ODOMETRY frames with their receive time to `on_odometry`.
 """
 from __future__ import annotations
 
 import logging
+import os
+import select
 import threading
 import time
 from dataclasses import dataclass
@@ -17,7 +22,16 @@ from typing import Callable, Iterator, Optional
 
 import serial
 from courtloc.services.shooter_bridge.config import LinkConfig
-from courtloc.services.shooter_bridge.protocol import Command, HoldReason, McuFrame, StreamDecoder, encode
+from courtloc.services.shooter_bridge.protocol import (
+    Command,
+    FrameError,
+    HoldReason,
+    McuFrame,
+    OdometrySample,
+    StreamDecoder,
+    encode,
+    parse_odometry,
+)
 
 log = logging.getLogger(__name__)
 
@@ -32,19 +46,26 @@ class LinkStats:
     open_failures: int = 0
     connects: int = 0
     status_frames: int = 0
+    odometry_frames: int = 0
+    bad_odometry: int = 0
     last_error: str = ""
 
 
 class McuLink:
-    def __init__(self, config: LinkConfig, on_status: Optional[Callable[[McuFrame], None]] = None) -> None:
+    def __init__(self, config: LinkConfig, on_status: Optional[Callable[[McuFrame], None]] = None,
+                 on_odometry: Optional[Callable[[OdometrySample, int], None]] = None) -> None:
         self.config = config
         self.on_status = on_status
+        self.on_odometry = on_odometry  # called on the link thread with (sample, receive monotonic ns)
         self.stats = LinkStats()
         self.last_status: Optional[McuFrame] = None
         self._decoder = StreamDecoder()
         self._lock = threading.Lock()
         self._pending: Optional[tuple[Command, int, int, int]] = None
-        self._wake = threading.Event()
+        self._wake_r, self._wake_w = os.pipe()  # select()-able wake-up: send() and stop() write a byte
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._pipe_closed = False
         self._stop = threading.Event()
         self._connected = threading.Event()
         self._port = None  # serial.Serial while open; touched by the writer thread only
@@ -67,7 +88,7 @@ class McuLink:
             if self._pending is not None:
                 self.stats.commands_replaced += 1
             self._pending = (command, value, int(flags) & 0xFF, int(reason) & 0xFF)
-        self._wake.set()
+        self._poke()
 
     @property
     def connected(self) -> bool:
@@ -88,10 +109,41 @@ class McuLink:
     def stop(self, timeout: float = 2.0) -> None:
         """Send a last HOLD (best effort), close the port and end the thread."""
         self._stop.set()
-        self._wake.set()
+        self._poke()
         if self._thread is not None:
             self._thread.join(timeout)
+            if self._thread.is_alive():
+                return  # still using the wake-up pipe; it goes with the process
             self._thread = None
+        if not self._pipe_closed:
+            self._pipe_closed = True
+            os.close(self._wake_r)
+            os.close(self._wake_w)
+
+    def _poke(self) -> None:
+        if self._pipe_closed:  # stopped: the descriptor number may belong to another file by now
+            return
+        try:
+            os.write(self._wake_w, b"\0")
+        except BlockingIOError:  # the pipe is full: a wake-up is pending already
+            pass
+
+    def _wait(self, timeout: float) -> tuple[bool, int]:
+        """Sleep until poked, the port is readable or `timeout`; (port readable, monotonic ns on waking)."""
+        port_fd = self._port.fileno() if self._port is not None else None
+        fds = [self._wake_r] if port_fd is None else [self._wake_r, port_fd]
+        try:
+            ready, _, _ = select.select(fds, [], [], timeout)
+        except (OSError, ValueError):  # the port's descriptor went away under us: the read reports it
+            ready = [port_fd]
+        woke_ns = time.monotonic_ns()
+        if self._wake_r in ready:
+            try:
+                while os.read(self._wake_r, 64):
+                    pass
+            except BlockingIOError:
+                pass
+        return port_fd is not None and port_fd in ready, woke_ns
 
     # ---- writer thread --------------------------------------------------------------------------
     def _run(self) -> None:
@@ -103,8 +155,7 @@ class McuLink:
                     continue
                 delays = backoff_delays(self.config.reconnect_initial_s, self.config.reconnect_max_s)
             due = self._last_write + self.config.heartbeat_s - time.monotonic()
-            self._wake.wait(max(0.0, due))
-            self._wake.clear()
+            readable, woke_ns = self._wait(max(0.0, due))
             if self._stop.is_set():
                 break
             with self._lock:
@@ -113,7 +164,7 @@ class McuLink:
                 self._write(*pending)
             elif time.monotonic() - self._last_write >= self.config.heartbeat_s:
                 self._write(Command.HEARTBEAT, 0, 0, 0)
-            self._read_status()
+            self._read_status(readable, woke_ns)
         if self._port is not None:
             self._write(Command.HOLD, 0, 0, int(HoldReason.STOPPED))
             self._close()
@@ -169,18 +220,28 @@ class McuLink:
             self.stats.heartbeats_sent += 1
         self._notify()
 
-    def _read_status(self) -> None:
+    def _read_status(self, readable: bool = False, received_ns: int = 0) -> None:
         if self._port is None:
             return
+        received_ns = received_ns or time.monotonic_ns()
         try:
             waiting = self._port.in_waiting
-            data = self._port.read(waiting) if waiting else b""
+            if readable and not waiting:
+                # readable with nothing to read: the device hung up (pyserial raises on this read)
+                data = self._port.read(1)
+                if not data:
+                    raise serial.SerialException("device reports readiness to read but returned no data")
+            else:
+                data = self._port.read(waiting) if waiting else b""
         except (serial.SerialException, OSError) as exc:
             self.stats.read_errors += 1
             self._note_error(f"read from {self.config.port}: {exc}")
             self._close()
             return
         for frame in self._decoder.feed(data):
+            if frame.command is Command.ODOMETRY:
+                self._hand_odometry(frame, received_ns)
+                continue
             if frame.command is not Command.STATUS:
                 continue
             self.stats.status_frames += 1
@@ -191,6 +252,21 @@ class McuLink:
                     self.on_status(frame)
                 except Exception:  # the caller's bug must not end the link
                     log.exception("on_status handler failed")
+
+    def _hand_odometry(self, frame: McuFrame, received_ns: int) -> None:
+        try:
+            sample = parse_odometry(frame)
+        except FrameError as exc:
+            self.stats.bad_odometry += 1
+            self._note_error(f"odometry frame: {exc}")
+            return
+        self.stats.odometry_frames += 1
+        if self.on_odometry is not None:
+            try:
+                self.on_odometry(sample, received_ns)
+            except Exception:  # the caller's bug must not end the link
+                log.exception("on_odometry handler failed")
+        self._notify()
 
     def _note_error(self, message: str) -> None:
         # Logged once per distinct error: a missing port during back-off would otherwise flood the log.

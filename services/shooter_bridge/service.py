@@ -21,8 +21,9 @@ from courtloc.common.runtime import Service
 from courtloc.common.services_table import Topic
 from courtloc.services.shooter_bridge.config import ShooterConfig, make_rpm_source
 from courtloc.services.shooter_bridge.link import McuLink
+from courtloc.services.shooter_bridge.odometry import OdometryIntake
 from courtloc.services.shooter_bridge.policy import ShotDecision, build_policy
-from courtloc.services.shooter_bridge.protocol import Command
+from courtloc.services.shooter_bridge.protocol import Command, OdometrySample
 from courtloc.shot.geometry import Pose2D
 
 
@@ -36,7 +37,8 @@ class ShooterBridgeService(Service):
         ring = config.target.ring_centre()
         self.rpm_source = make_rpm_source(config, ring_height_m=ring[2])
         self.policy = build_policy(config, self.rpm_source.lookup, ring=ring)
-        self.link = McuLink(config.link)
+        self.odometry = OdometryIntake(robot_id, config.odometry, stage=self.name)
+        self.link = McuLink(config.link, on_odometry=self._on_odometry if config.odometry.enabled else None)
         self._lock = threading.Lock()
         self._latest: Optional[Pose] = None
         self._last_decided = -math.inf
@@ -56,6 +58,12 @@ class ShooterBridgeService(Service):
         with self._lock:
             self._latest = message
             self._decide(publish_always=True)
+
+    def _on_odometry(self, sample: OdometrySample, received_ns: int) -> None:
+        """On the link thread: check, time-align and publish one MCU odometry frame (microseconds of work)."""
+        message = self.odometry.accept(sample, received_ns)
+        if message is not None and self.session is not None:
+            self.publish("shooter_bridge/odometry", message)
 
     def _tick(self) -> None:
         period = self.config.decide_period_s
@@ -121,4 +129,8 @@ class ShooterBridgeService(Service):
             detail["table_reloads"] = reloads
             detail["table_errors"] = getattr(self.rpm_source, "errors", 0)
         detail.update({f"hold.{reason}": count for reason, count in self.holds.items()})
+        if stats.odometry_frames or stats.bad_odometry:
+            detail["mcu_odometry_frames"] = stats.odometry_frames
+            detail["mcu_bad_odometry"] = stats.bad_odometry
+            detail.update(self.odometry.health())
         return detail

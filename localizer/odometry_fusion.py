@@ -1,0 +1,462 @@
+"""Wheel odometry and gyro in the tracker's motion filter: predict with them, correct with vision.
+
+The geometric localizer's filter (`motion.py`) predicts a frame at constant velocity. With odometry the
+prediction is what the wheels and the gyro measured between the two frames' capture times instead,
+and the localizer's own prediction step is left with nothing to do (the state handed to it is already
+at the frame's time). Vision fixes then correct it exactly as before (gate, fuse, restart).
+
+- **Time.** `Odometry` messages carry the dead-reckoned pose of their epoch at the end of their window,
+  on the robot's monotonic clock (`header.capture_mono_ns`), so the motion between two frames is the
+  difference of that pose interpolated at the two capture times; a message lost in between loses
+  nothing. Odometry that has not yet reached a frame's time is extrapolated by at most
+  `max_extrapolate_s`; later than that, or across an epoch change, the frame falls back to the
+  constant-velocity prediction (counted).
+- **Noise, slip and bias.** The prediction's covariance grows with the distance and the turn driven
+  (`wheel_noise_per_m`, `yaw_noise_per_rad`) plus the gyro bias' spread over the interval; frames with
+  the source's slip flag get `slip_inflation` times the noise. Each vision fix that follows another
+  within `learn_window_s` measures the gyro bias (yaw turned by odometry minus yaw turned by vision, per
+  second) and the wheel scale (distance by vision over distance by odometry); both are learnt by a
+  scalar Kalman filter and bounded (`max_gyro_bias_rad_s`, `scale_bounds`). Slip the source does not
+  flag is bounded by physics: a wheel speed rising faster than `max_accel_m_s2` (+ `speed_margin_m_s`)
+  allows is cut to that, the window's step shortened accordingly (`fusion.slip_limited`).
+- **Bad odometry** is rejected with a counted reason before it reaches the buffer: not finite,
+  invalid, from another host's clock, from the future or too old, a stalled source clock, a jump (more
+  speed or turn rate than a robot has). A saturated gyro or a slip flag down-weights.
+- **Validity.** A blind frame (fewer than `min_hits_in_view` hits) may be valid on odometry alone for
+  `horizon_s` after the last fix, and only while its position std is below `max_position_std_m`; then
+  it is invalid (reason `odometry_horizon`) until vision returns. A frame with lines in view but no fix
+  near the prediction is never valid on odometry (`odometry_unconfirmed`).
+- **Kidnap.** Vision and odometry disagreeing (a fix that restarts the track far outside the odometry
+  prediction's covariance, or `disagree_frames` frames in a row with court lines in view but no fix
+  near the prediction) marks every pose invalid (`odometry_disagrees`) and makes the tracker search
+  the whole court, until `recover_fixes` fixes in a row agree again.
+"""
+from __future__ import annotations
+
+import math
+from collections import Counter, deque
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+from courtloc.common.messages import HOST, Odometry
+from courtloc.localizer import motion
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class FusionConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    enabled: bool = Field(False, description="predict with odometry from shooter_bridge/odometry")
+    horizon_s: float = Field(2.5, gt=0, le=10.0, description="longest a pose stays valid on odometry alone")
+    max_position_std_m: float = Field(0.12, gt=0, description="an odometry-only pose less certain than this is invalid")
+    buffer_s: float = Field(3.0, gt=0, le=30.0, description="odometry kept for aligning frames")
+    max_extrapolate_s: float = Field(0.08, ge=0, description="odometry may be extrapolated this far to a frame")
+    future_tolerance_s: float = Field(0.02, ge=0, description="a sample stamped later than now + this is refused")
+    max_speed_m_s: float = Field(6.0, gt=0, description="faster between two samples is a jump, not motion")
+    max_yaw_rate_rad_s: float = Field(20.0, gt=0)
+    wheel_noise_per_m: float = Field(0.03, ge=0, description="position std per metre driven (slip, wheel wear)")
+    wheel_noise_floor_m: float = Field(0.001, ge=0, description="position std added per frame interval")
+    yaw_noise_per_rad: float = Field(0.02, ge=0, description="yaw std per radian turned")
+    yaw_noise_floor_rad: float = Field(0.0005, ge=0)
+    slip_inflation: float = Field(4.0, ge=1.0, description="noise factor while the source flags slip")
+    max_accel_m_s2: float = Field(3.0, gt=0, description="the robot cannot speed up faster: wheel speed that "
+                                  "does is slip, and the step is shortened to this")
+    speed_margin_m_s: float = Field(0.1, ge=0, description="wheel speed noise allowed on top of max_accel")
+    gyro_bias_sigma_rad_s: float = Field(0.01, ge=0, description="prior std of the gyro bias")
+    max_gyro_bias_rad_s: float = Field(0.05, ge=0, description="the learnt bias is clipped to this")
+    scale_sigma: float = Field(0.05, ge=0, description="prior std of the wheel scale (1 = exact)")
+    scale_bounds: tuple[float, float] = (0.85, 1.15)
+    learn_window_s: tuple[float, float] = Field((0.3, 2.0), description="fix pairs this far apart teach bias/scale")
+    min_learn_distance_m: float = Field(0.3, gt=0, description="shorter drives do not teach the wheel scale")
+    disagree_chi2: float = Field(25.0, gt=0, description="a vision fix this far (chi-square, 3 dof) from the "
+                                 "odometry prediction restarts the track: suspected kidnap")
+    disagree_frames: int = Field(3, ge=1, description="frames in a row WITH court lines in view but no fix "
+                             "that fits the odometry prediction: suspected kidnap")
+    min_hits_in_view: int = Field(40, ge=1, description="a frame with fewer hits is blind, not disagreeing")
+    recover_fixes: int = Field(5, ge=1, description="fixes in a row that agree before poses are valid again")
+
+
+@dataclass(frozen=True)
+class _Sample:
+    t: float
+    epoch: int
+    pose: tuple[float, float, float]  # dead-reckoned in the epoch's frame
+    slip: bool
+    source_ns: int
+    seq: int
+
+
+@dataclass(frozen=True)
+class OdometryDelta:
+    """Motion between two times in the robot frame at the first: forward, left (m), turn (rad)."""
+
+    dx: float
+    dy: float
+    dyaw: float
+    slip: bool
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+class OdometryBuffer:
+    """Recent odometry of one epoch at a time; answers the motion between two times."""
+
+    def __init__(self, keep_s: float) -> None:
+        self.keep_s = keep_s
+        self.samples: deque[_Sample] = deque()
+
+    def add(self, sample: _Sample) -> None:
+        if self.samples and sample.epoch != self.samples[-1].epoch:
+            self.samples.clear()  # differences across epochs mean nothing
+        self.samples.append(sample)
+        while self.samples and self.samples[0].t < sample.t - self.keep_s:
+            self.samples.popleft()
+
+    def clear(self) -> None:
+        self.samples.clear()
+
+    def pose_at(self, t: float, max_extrapolate_s: float) -> Optional[tuple[np.ndarray, bool]]:
+        """The epoch's dead-reckoned pose at t (interpolated; extrapolated a little past the newest)."""
+        s = self.samples
+        if len(s) < 2 or t < s[0].t:
+            return None
+        if t >= s[-1].t:
+            if t - s[-1].t > max_extrapolate_s:
+                return None
+            a, b = s[-2], s[-1]
+        else:
+            lo, hi = 0, len(s) - 1
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                if s[mid].t <= t:
+                    lo = mid
+                else:
+                    hi = mid
+            a, b = s[lo], s[hi]
+        span = b.t - a.t
+        w = (t - a.t) / span if span > 0 else 1.0
+        pa, pb = np.array(a.pose), np.array(b.pose)
+        step = pb - pa
+        step[2] = _wrap(step[2])
+        return pa + w * step, a.slip or b.slip
+
+    def delta(self, t0: float, t1: float, max_extrapolate_s: float) -> Optional[OdometryDelta]:
+        p0 = self.pose_at(t0, max_extrapolate_s)
+        p1 = self.pose_at(t1, max_extrapolate_s)
+        if p0 is None or p1 is None:
+            return None
+        (a, slip0), (b, slip1) = p0, p1
+        c, s = math.cos(a[2]), math.sin(a[2])
+        d = b[:2] - a[:2]
+        return OdometryDelta(dx=c * d[0] + s * d[1], dy=-s * d[0] + c * d[1], dyaw=_wrap(b[2] - a[2]),
+                             slip=slip0 or slip1)
+
+
+@dataclass
+class _Scalar:
+    """A scalar random constant learnt from noisy observations (1-D Kalman filter), clipped to bounds."""
+
+    mean: float
+    var: float
+    lo: float
+    hi: float
+
+    def observe(self, value: float, var: float) -> None:
+        gain = self.var / (self.var + var)
+        self.mean = min(max(self.mean + gain * (value - self.mean), self.lo), self.hi)
+        self.var = (1 - gain) * self.var
+
+
+class OdometryFusion:
+    """Per-track odometry state of the infer stage: buffer, learnt bias and scale, counters."""
+
+    def __init__(self, config: FusionConfig) -> None:
+        self.config = config
+        self.buffer = OdometryBuffer(config.buffer_s)
+        self.bias = _Scalar(0.0, config.gyro_bias_sigma_rad_s ** 2, -config.max_gyro_bias_rad_s,
+                            config.max_gyro_bias_rad_s)
+        self.scale = _Scalar(1.0, config.scale_sigma ** 2, *config.scale_bounds)
+        self.rejected: Counter[str] = Counter()
+        self.counts: Counter[str] = Counter()
+        self.last_fix: Optional[tuple[float, np.ndarray]] = None  # (t, pose) of the last vision fix
+        self._last: Optional[_Sample] = None  # the last accepted sample as received
+        self._corrected: Optional[_Sample] = None  # the same with slip limited (what the buffer holds)
+        self._speed_ref = 0.0  # the speed the next window may exceed only by what the robot can accelerate
+        self._predicted_t: Optional[float] = None  # the frame time the last prediction used odometry for
+        self._anchor: Optional[tuple[float, np.ndarray]] = None  # first fix of the pair that teaches bias/scale
+        self.suspect = False  # vision disagrees with odometry (kidnap, or a wrong track): invalid until recovered
+        self._disagreeing = 0  # frames in a row with lines in view but no fix
+        self._agreeing = 0  # fixes in a row since a suspicion
+        self.search_pending = False  # the next frame searches the whole court (once per suspicion)
+
+    # ---- input ----------------------------------------------------------------------------------
+    def offer(self, message: Odometry, now_s: float) -> bool:
+        """Check one message and buffer it; False (counted in `rejected`) when it is not used."""
+        reason = self._check(message, now_s)
+        if reason:
+            self.rejected[reason] += 1
+            return False
+        if message.gyro_saturated:
+            self.counts["gyro_saturated"] += 1
+        if message.wheel_slip:
+            self.counts["wheel_slip"] += 1
+        raw = _Sample(t=message.header.capture_mono_ns * 1e-9, epoch=message.epoch,
+                      pose=(message.odom_x_m, message.odom_y_m, message.odom_yaw_rad),
+                      slip=message.wheel_slip or message.gyro_saturated, source_ns=message.source_time_ns,
+                      seq=message.source_seq)
+        self.buffer.add(self._limit_slip(raw, message))
+        self._last = raw
+        return True
+
+    def _limit_slip(self, raw: _Sample, message: Odometry) -> _Sample:
+        """The sample with its step shortened to what the robot can accelerate to (unflagged slip bounded).
+
+        A wheel that slips over-reads its speed from one window to the next faster than the robot can
+        accelerate: the step is scaled down to `speed reference + max_accel * window + margin`, and the
+        buffer keeps its own corrected dead reckoning (the raw one would carry the slip on)."""
+        cfg = self.config
+        last, corrected = self._last, self._corrected
+        speed = math.hypot(message.vx_m_s, message.vy_m_s)
+        if last is None or corrected is None or raw.epoch != last.epoch:
+            self._corrected, self._speed_ref = raw, speed
+            return raw
+        dt = max(raw.t - last.t, message.window_s)
+        # The reference follows a falling speed at once and a rising one at most at max_accel; the
+        # margin (wheel speed noise) is allowed on top but never accumulates into the reference.
+        self._speed_ref = min(speed, self._speed_ref + cfg.max_accel_m_s2 * dt)
+        allowed = self._speed_ref + cfg.speed_margin_m_s
+        factor = 1.0
+        if speed > allowed:
+            factor = allowed / speed
+            self.counts["slip_limited"] += 1
+        step_x, step_y = raw.pose[0] - last.pose[0], raw.pose[1] - last.pose[1]
+        pose = (corrected.pose[0] + factor * step_x, corrected.pose[1] + factor * step_y, raw.pose[2])
+        self._corrected = _Sample(t=raw.t, epoch=raw.epoch, pose=pose, slip=raw.slip or factor < 1.0,
+                                  source_ns=raw.source_ns, seq=raw.seq)
+        return self._corrected
+
+    def _check(self, m: Odometry, now_s: float) -> str:
+        cfg = self.config
+        values = (m.odom_x_m, m.odom_y_m, m.odom_yaw_rad, m.vx_m_s, m.vy_m_s, m.wz_wheels_rad_s, m.wz_gyro_rad_s)
+        if not all(math.isfinite(v) for v in values):
+            return "non_finite"
+        if not m.header.valid or not m.wheels_valid:
+            return "invalid"
+        if m.header.capture_host != HOST:
+            return "other_host"  # its monotonic clock is not ours: frames cannot be aligned to it
+        t = m.header.capture_mono_ns * 1e-9
+        if t > now_s + cfg.future_tolerance_s:
+            return "future"
+        if t < now_s - cfg.buffer_s:
+            return "stale"
+        last = self._last
+        if last is not None and m.epoch == last.epoch:
+            if m.source_time_ns <= last.source_ns:
+                return "duplicate" if m.source_seq == last.seq else "stalled_clock"
+            dt = t - last.t
+            if dt <= 0:
+                return "stalled_clock"
+            moved = math.hypot(m.odom_x_m - last.pose[0], m.odom_y_m - last.pose[1])
+            turned = abs(_wrap(m.odom_yaw_rad - last.pose[2]))
+            if moved > cfg.max_speed_m_s * dt + 0.01 or turned > cfg.max_yaw_rate_rad_s * dt + 0.01:
+                # A jump in the cumulative pose: nothing before it can be differenced with anything after.
+                self.buffer.clear()
+                self._last = self._corrected = None
+                return "jump"
+        return ""
+
+    # ---- the two hooks around one tracked frame -----------------------------------------------------
+    def before_frame(self, state: Optional[motion.MotionState], t: Optional[float]) -> Optional[motion.MotionState]:
+        """`state` advanced to the frame time t with odometry (its covariance grown by the odometry's noise),
+        or `state` unchanged when odometry cannot say (the filter then predicts at constant velocity)."""
+        self._predicted_t = None
+        if state is None or t is None or state.t is None:
+            return state
+        if t <= state.t:
+            return state
+        delta = self.buffer.delta(state.t, t, self.config.max_extrapolate_s)
+        if delta is None:
+            newest = self.buffer.samples[-1].t if self.buffer.samples else -math.inf
+            self.counts["fallback_late" if newest < t else "fallback_gap"] += 1
+            return state
+        self.counts["predicted"] += 1
+        self._predicted_t = t
+        return self._advance(state, delta, t)
+
+    def _advance(self, state: motion.MotionState, delta: OdometryDelta, t: float) -> motion.MotionState:
+        cfg = self.config
+        dt = t - float(state.t)
+        x, y, yaw = state.mean[:3]
+        scale = self.scale.mean
+        dx, dy = delta.dx * scale, delta.dy * scale
+        dyaw = delta.dyaw - self.bias.mean * dt
+        c, s = math.cos(yaw), math.sin(yaw)
+        mean = state.mean.copy()
+        mean[0] = x + c * dx - s * dy
+        mean[1] = y + s * dx + c * dy
+        mean[2] = _wrap(yaw + dyaw)
+        mean[3], mean[4], mean[5] = (mean[0] - x) / dt, (mean[1] - y) / dt, dyaw / dt
+        # Jacobian of the pose with respect to the previous pose (yaw turns the step) and to the
+        # learnt scale and bias, whose uncertainty the step inherits.
+        f = np.eye(3)
+        f[0, 2] = -(s * dx + c * dy)
+        f[1, 2] = c * dx - s * dy
+        inflate = cfg.slip_inflation if delta.slip else 1.0
+        dist = math.hypot(dx, dy)
+        pos_sd = inflate * (cfg.wheel_noise_per_m * dist + cfg.wheel_noise_floor_m)
+        yaw_sd = inflate * (cfg.yaw_noise_per_rad * abs(dyaw) + cfg.yaw_noise_floor_rad)
+        rot = np.array([[c, -s], [s, c]])
+        q = np.zeros((3, 3))
+        q[:2, :2] = rot @ np.diag([pos_sd ** 2, pos_sd ** 2]) @ rot.T
+        step_world = np.array([mean[0] - x, mean[1] - y])
+        q[:2, :2] += np.outer(step_world, step_world) * (self.scale.var / max(scale * scale, 1e-9))
+        q[2, 2] = yaw_sd ** 2 + self.bias.var * dt * dt
+        cov = state.cov.copy()
+        cov[:3, :3] = f @ state.cov[:3, :3] @ f.T + q
+        cov[:3, 3:] = 0.0  # the velocity slots only carry the odometry's velocity for display
+        cov[3:, :3] = 0.0
+        within = self.last_fix is not None and t - self.last_fix[0] <= cfg.horizon_s
+        return motion.MotionState(mean=mean, cov=cov, t=t, lost=0 if within else state.lost)
+
+    def search_next(self, state: motion.MotionState, cfg: motion.MotionConfig) -> motion.MotionState:
+        """The state marked lost, so the tracker searches the whole court next frame (the odometry prior
+        is the thing in doubt; the lost state's pose still only picks the symmetry twin)."""
+        return motion.MotionState(mean=state.mean, cov=state.cov, t=state.t, lost=max(state.lost, cfg.max_lost_frames))
+
+    def after_frame(self, valid: bool, fused_by_vision: bool, state: Optional[motion.MotionState],
+                    t: Optional[float], n_hits: int = 0) -> tuple[bool, str]:
+        """Learn from a vision fix; decide whether a frame without one may be valid on odometry alone.
+
+        Returns (valid, reason): the frame's validity after fusion and, when odometry decided, why."""
+        if t is None or state is None:
+            return valid, ""
+        if valid and fused_by_vision:
+            self._disagreeing = 0
+            if self.suspect:
+                self._agreeing += 1
+                if self._agreeing < self.config.recover_fixes:
+                    self.last_fix = (t, state.pose)
+                    return False, "odometry_disagrees"
+                self.suspect = False
+                self.counts["recovered"] += 1
+            self._learn(t, state.pose)
+            self.last_fix = (t, state.pose)
+            return True, ""
+        self._anchor = None  # a frame without a fix ends the fix pair (the next fix starts a new one)
+        if self.suspect:
+            self._agreeing = 0
+            return False, "odometry_disagrees"
+        if valid or self._predicted_t != t:
+            return valid, ""
+        if n_hits >= self.config.min_hits_in_view:
+            # Court lines in view and still no fix near the odometry prediction: one of them is wrong, and
+            # a pose that may be wrong is not valid. (Blind frames are the odometry's to bridge.)
+            self.counts["no_fix_in_view"] += 1
+            return False, "odometry_unconfirmed"
+        if self.last_fix is None or t - self.last_fix[0] > self.config.horizon_s:
+            self.counts["beyond_horizon"] += 1
+            return False, "odometry_horizon"
+        if state.position_std_m > self.config.max_position_std_m:
+            self.counts["too_uncertain"] += 1
+            return False, "odometry_uncertain"
+        self.counts["valid_on_odometry"] += 1
+        return True, ""
+
+    def note_vision(self, before: Optional[motion.MotionState], after: Optional[motion.MotionState], n_hits: int,
+                    fused: bool) -> None:
+        """Suspect a kidnap when vision and odometry disagree: a fix that restarted the track far from the
+        odometry prediction, or `disagree_frames` frames in a row with lines in view and no fix."""
+        if self.suspect or before is None or self._predicted_t is None or before.t != self._predicted_t:
+            return  # while suspected, recovery is counted by after_frame
+        if fused and after is not None:
+            nu = after.mean[:3] - before.mean[:3]
+            nu[2] = _wrap(float(nu[2]))
+            s = before.cov[:3, :3] + np.diag([0.02 ** 2, 0.02 ** 2, math.radians(1.0) ** 2])
+            if float(nu @ np.linalg.solve(s, nu)) > self.config.disagree_chi2:
+                self._suspect("restart")
+            return
+        if n_hits >= self.config.min_hits_in_view:
+            self._disagreeing += 1
+            if self._disagreeing >= self.config.disagree_frames:
+                self._suspect("no_fit_in_view")
+        else:
+            self._disagreeing = 0
+
+    def _suspect(self, why: str) -> None:
+        if not self.suspect:
+            self.counts[f"suspect_{why}"] += 1
+        self.suspect = True
+        self.search_pending = True
+        self._agreeing = 0
+        self._disagreeing = 0
+        self._anchor = None
+
+    def _learn(self, t: float, pose: np.ndarray) -> None:
+        """Gyro bias and wheel scale from two vision fixes at least `learn_window_s[0]` apart (an unbroken run
+        of fixes) and the odometry between them."""
+        lo, hi = self.config.learn_window_s
+        if self._anchor is None or t - self._anchor[0] > hi:
+            self._anchor = (t, pose)
+            return
+        t0, pose0 = self._anchor
+        dt = t - t0
+        if dt < lo:
+            return
+        self._anchor = (t, pose)
+        delta = self.buffer.delta(t0, t, self.config.max_extrapolate_s)
+        if delta is None or delta.slip:
+            self.counts["learn_skipped"] += 1
+            return
+        self.counts["learnt"] += 1
+        vision_turn = _wrap(float(pose[2] - pose0[2]))
+        # Two fixes' yaw errors (~0.2 deg each) over dt: the observation's variance.
+        yaw_var = 2 * math.radians(0.3) ** 2
+        self.bias.observe((delta.dyaw - vision_turn) / dt, yaw_var / (dt * dt))
+        odo_dist = math.hypot(delta.dx, delta.dy)
+        if odo_dist >= self.config.min_learn_distance_m:
+            vision_dist = math.hypot(float(pose[0] - pose0[0]), float(pose[1] - pose0[1]))
+            self.scale.observe(vision_dist / odo_dist, 2 * (0.01 / odo_dist) ** 2)
+
+    def health(self) -> dict[str, float | int]:
+        detail: dict[str, float | int] = {f"odom_rejected.{k}": v for k, v in self.rejected.items()}
+        detail.update({f"fusion.{k}": v for k, v in self.counts.items()})
+        detail["fusion.odometry_buffered"] = len(self.buffer.samples)
+        detail["fusion.gyro_bias_rad_s"] = round(float(self.bias.mean), 6)
+        detail["fusion.wheel_scale"] = round(float(self.scale.mean), 5)
+        return detail
+
+
+def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, width: int, height: int,  # noqa: ANN001
+                state, t: Optional[float]):  # noqa: ANN001, ANN201
+    """One tracked frame with odometry around it: (Prediction, next state, reason when odometry decided).
+
+    Without fusion it is exactly `predictor.track`."""
+    if fusion is None:
+        pred, state = predictor.track(hits, width, height, state, t=t)
+        return pred, state, ""
+    before = fusion.before_frame(state, t)
+    if fusion.search_pending and before is not None:
+        before = fusion.search_next(before, predictor.localizer.config.motion)
+        fusion.search_pending = False
+    pred, after = predictor.track(hits, width, height, before, t=t)
+    # lost == 0 after the step: a fit was fused, or a valid one (re)started the track.
+    fused_by_vision = after is not None and after.lost == 0
+    fusion.note_vision(before, after, len(hits), fused_by_vision)
+    valid, reason = fusion.after_frame(pred.valid, fused_by_vision, after, t, len(hits))
+    if after is not None and fusion._predicted_t == t and not pred.valid and not fusion.suspect:
+        # No usable fit: the answer is the odometry prediction (the filter's state), valid or not.
+        x, y, yaw = (float(v) for v in after.mean[:3])
+        pred = pred.model_copy(update={"x": x, "y": y, "yaw": yaw, "valid": valid, "mode": "odometry",
+                                       "position_std_m": after.position_std_m})
+    elif pred.valid and not valid:  # vision and odometry disagree: not valid until they agree again
+        pred = pred.model_copy(update={"valid": False, "quality": min(pred.quality, 0.49)})
+    return pred, after, reason
+
+
+def pose_covariance(state) -> list[float]:  # noqa: ANN001
+    """Row-major 3x3 (x, y, yaw) covariance of a motion state, [] when there is none."""
+    if not isinstance(state, motion.MotionState):
+        return []
+    return [float(v) for v in np.asarray(state.cov[:3, :3]).ravel()]

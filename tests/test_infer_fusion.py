@@ -1,0 +1,86 @@
+"""The infer stage as its own process with odometry fusion on: odometry from another source (here the test,
+as a ROS bridge would) on shooter_bridge/odometry carries the pose through a blind frame, and bad odometry
+is counted with its reason."""
+from __future__ import annotations
+
+import math
+import threading
+from pathlib import Path
+
+import pytest
+from buskit import BusClient, free_port, start_router, start_stage, write_config
+from courtloc.common import codec
+from courtloc.common.messages import Edges, Header, Odometry
+from courtloc.common.payloads import hits_to_bytes
+from infer_models import TwinFrames
+
+pytestmark = pytest.mark.integration
+
+TRUTH = (2.0, -1.5, 0.4)
+
+
+def _odometry(seq: int, x: float = 0.0) -> Odometry:
+    header = Header.now("robot1", seq, "test-odometry")
+    header.valid = True
+    return Odometry(header=header, source="test", source_seq=seq, source_time_ns=header.capture_mono_ns,
+                    received_mono_ns=header.capture_mono_ns, window_s=0.02, wheels_valid=True, gyro_valid=True,
+                    odom_x_m=x)
+
+
+def test_a_blind_frame_is_bridged_by_odometry_with_its_covariance(tmp_path: Path) -> None:
+    port = free_port()
+    config = write_config(tmp_path / "robot.toml", port, f"""
+[infer]
+store = "{tmp_path / 'store'}"
+[infer.fusion]
+enabled = true
+""")
+    router = start_router(port)
+    client = BusClient(port)
+    client.subscribe("infer/pose")
+    client.subscribe("infer/health")
+    infer = start_stage("infer", config)
+    stop = threading.Event()
+    frames = TwinFrames([TRUTH])
+
+    def stream_odometry() -> None:  # the robot stands still: its odometry pose stays at the origin, time goes on
+        seq = 0
+        while not stop.wait(0.02):
+            client.put_raw("shooter_bridge/odometry", codec.encode(_odometry(seq)))
+            seq += 1
+
+    streamer = threading.Thread(target=stream_odometry, daemon=True)
+    try:
+        infer.wait_line("infer running for robot", timeout=60)
+        client.wait_subscribed("preprocess/edges")
+        client.wait_subscribed("shooter_bridge/odometry")
+        streamer.start()
+        # Odometry is in the stage's buffer before the first frame, so the frames can be aligned to it.
+        client.wait_for("infer/health", lambda h: h.detail.get("fusion.odometry_buffered", 0) >= 3, timeout=60)
+        client.put_raw("preprocess/edges", codec.encode(frames.edges(0, 1)))
+        seen = client.wait_for("infer/pose", lambda p: p.header.seq == 1)
+        assert seen.header.valid and math.hypot(seen.x - TRUTH[0], seen.y - TRUTH[1]) < 0.1
+        assert len(seen.covariance) == 9 and seen.covariance[0] > 0  # x variance of the tracked pose
+
+        # The lens is covered: no hits. Vision alone would answer no_hits; the odometry says "not moved".
+        header = Header.now("robot1", 2, "camera").forwarded("preprocess", valid=True)
+        blind = Edges(header=header, width=640, height=480, crop_top=0, n_hits=0,
+                      hits=hits_to_bytes(frames.hits[0][:0]))
+        client.put_raw("preprocess/edges", codec.encode(blind))
+        bridged = client.wait_for("infer/pose", lambda p: p.header.seq == 2)
+        assert bridged.header.valid, bridged.reason
+        assert math.hypot(bridged.x - seen.x, bridged.y - seen.y) < 0.01
+        assert bridged.covariance[0] >= seen.covariance[0]  # the prediction is less certain than the fix
+
+        bad = _odometry(10_000)
+        bad.odom_x_m = math.nan
+        client.put_raw("shooter_bridge/odometry", codec.encode(bad))
+        health = client.wait_for("infer/health", lambda h: h.detail.get("odom_rejected.non_finite", 0) >= 1)
+        assert health.detail["fusion.valid_on_odometry"] >= 1 and infer.alive()
+    finally:
+        stop.set()
+        streamer.join(2.0)
+        client.close()
+        code = infer.stop()
+        router.stop()
+    assert code == 0, infer.output()

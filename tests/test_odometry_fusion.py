@@ -1,0 +1,156 @@
+"""Odometry fusion: the time-aligned buffer, bad odometry refused with a reason, the twin's MCU, and the
+blackout on the twin (vision removed for 2 s while driving at 1.5 m/s)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from courtloc.common.messages import Header, Odometry
+from courtloc.localizer import motion
+from courtloc.localizer.config import MotionConfig
+from courtloc.localizer.odometry_fusion import FusionConfig, OdometryBuffer, OdometryFusion, _Sample
+
+
+def odometry(t: float, x: float, y: float = 0.0, yaw: float = 0.0, epoch: int = 0, seq: int = 0,
+             source_ns: int | None = None, **kw) -> Odometry:
+    header = Header(robot_id="robot1", seq=seq, capture_mono_ns=int(round(t * 1e9)), capture_wall_ns=0, valid=True)
+    fields = dict(source="test", source_seq=seq, source_time_ns=int(round(t * 1e9)) if source_ns is None else source_ns,
+                  received_mono_ns=int(round(t * 1e9)), window_s=0.01, wheels_valid=True, gyro_valid=True,
+                  epoch=epoch, odom_x_m=x, odom_y_m=y, odom_yaw_rad=yaw)
+    fields.update(kw)
+    return Odometry(header=header, **fields)
+
+
+def test_buffer_gives_body_frame_motion_between_two_times() -> None:
+    buffer = OdometryBuffer(keep_s=5.0)
+    for i in range(101):  # an arc: 1 m/s, 0.5 rad/s, dead-reckoned exactly
+        t = i * 0.01
+        yaw = 0.5 * t
+        buffer.add(_Sample(t=t, epoch=0, pose=(2 * math.sin(yaw), 2 * (1 - math.cos(yaw)), yaw), slip=False,
+                           source_ns=i, seq=i))
+    delta = buffer.delta(0.305, 0.805, max_extrapolate_s=0.0)
+    assert delta is not None
+    turn = 0.5 * 0.5
+    # Chord of the arc seen from the pose at 0.305 s (interpolation between 10 ms samples: < 1e-4 m).
+    assert delta.dyaw == pytest.approx(turn, abs=1e-9)
+    assert delta.dx == pytest.approx(2 * math.sin(turn), abs=1e-4)
+    assert delta.dy == pytest.approx(2 * (1 - math.cos(turn)), abs=1e-4)
+    assert buffer.delta(0.9, 1.05, max_extrapolate_s=0.08) is not None  # 50 ms past the newest
+    assert buffer.delta(0.9, 1.2, max_extrapolate_s=0.08) is None  # too late to extrapolate
+    buffer.add(_Sample(t=1.01, epoch=1, pose=(0, 0, 0), slip=False, source_ns=999, seq=999))
+    assert buffer.delta(0.9, 1.0, max_extrapolate_s=0.08) is None  # a new epoch: nothing to difference
+
+
+def test_prediction_follows_the_odometry_and_grows_the_covariance() -> None:
+    fusion = OdometryFusion(FusionConfig(enabled=True))
+    for i in range(60):
+        assert fusion.offer(odometry(i * 0.01, x=1.5 * i * 0.01, seq=i), now_s=i * 0.01 + 0.005)
+    state = motion.start(np.array([1.0, 2.0, math.pi / 2]), np.diag([1e-4, 1e-4, 1e-5]), 0.1, MotionConfig())
+    fusion.last_fix = (0.1, state.pose)
+    ahead = fusion.before_frame(state, 0.5)
+    # 0.6 m forward while facing +y: the court y grows by 0.6 m.
+    assert ahead.t == 0.5 and ahead.mean[0] == pytest.approx(1.0, abs=1e-9)
+    assert ahead.mean[1] == pytest.approx(2.6, abs=1e-9) and ahead.mean[2] == pytest.approx(math.pi / 2)
+    assert ahead.cov[1, 1] > state.cov[1, 1] and ahead.lost == 0
+    assert fusion.counts["predicted"] == 1
+    # Odometry that ends 0.6 s before the frame cannot say: the filter keeps its own prediction (counted).
+    assert fusion.before_frame(state, 1.2) is state and fusion.counts["fallback_late"] == 1
+
+
+def test_bad_odometry_is_refused_with_a_counted_reason() -> None:
+    fusion = OdometryFusion(FusionConfig(enabled=True, max_speed_m_s=5.0))
+    now = 10.0
+    assert fusion.offer(odometry(9.90, x=0.00, seq=1), now)
+    assert fusion.offer(odometry(9.91, x=0.01, seq=2), now)
+    assert not fusion.offer(odometry(9.92, x=math.nan, seq=3), now)
+    assert not fusion.offer(odometry(9.92, x=0.02, seq=4, wheels_valid=False), now)
+    assert not fusion.offer(odometry(10.5, x=0.02, seq=5), now)  # stamped in the future
+    assert not fusion.offer(odometry(1.0, x=0.02, seq=6), now)  # far in the past
+    assert not fusion.offer(odometry(9.92, x=0.02, seq=7, source_ns=int(9.91e9)), now)  # the source clock stood still
+    assert not fusion.offer(odometry(9.92, x=0.90, seq=8), now)  # 89 m/s: a jump
+    other = odometry(9.93, x=0.03, seq=9)
+    other.header.capture_host = "another-host"
+    assert not fusion.offer(other, now)
+    assert dict(fusion.rejected) == {"non_finite": 1, "invalid": 1, "future": 1, "stale": 1, "stalled_clock": 1,
+                                     "jump": 1, "other_host": 1}
+    assert len(fusion.buffer.samples) == 0  # the jump broke continuity: nothing before it is differenced
+    assert fusion.offer(odometry(9.94, x=0.90, seq=10, wheel_slip=True, gyro_saturated=True), now)
+    assert fusion.counts["wheel_slip"] == 1 and fusion.counts["gyro_saturated"] == 1
+
+
+def test_twin_odometry_has_its_scale_error_bias_and_latency() -> None:
+    from courtloc.sim.odometry import OdometrySimConfig, OdometrySimulator
+    from courtloc.sim.trajectory import WaypointTrajectory
+
+    trajectory = WaypointTrajectory([(0.0, 0.0, 0.0), (3.0, 0.0, 0.0)], speed=1.5, yaw_rate=1.0)
+    config = OdometrySimConfig(slip_rate_hz=0.0, wheel_scale=1.05, gyro_bias_rad_s=0.02)
+    delivered = list(OdometrySimulator(trajectory, config, seed=1).stream(1.9))
+    last = delivered[-1].message
+    # 1.9 s at 1.5 m/s read 5 % long by the wheels; the gyro heading drifts by the bias (0.02 rad/s).
+    assert last.odom_x_m == pytest.approx(1.05 * 1.5 * 1.9, abs=0.02)
+    assert last.odom_yaw_rad == pytest.approx(0.02 * 1.9, abs=0.01)
+    arrivals = [d.at_s for d in delivered]
+    assert arrivals == sorted(arrivals)
+    assert all(d.message.received_mono_ns >= d.message.header.capture_mono_ns for d in delivered)  # never early
+    assert len(delivered) == 190 and last.epoch == 0  # 100 Hz for 1.9 s, all on time, one epoch
+
+
+@pytest.fixture(scope="module")
+def blackout():  # noqa: ANN201
+    from courtloc.sim.fusion_bench import run_scenario
+
+    return run_scenario("blackout", duration=5.0, blackout_at=2.0, blackout_s=2.0, detail=True)
+
+
+def test_blackout_error_growth_with_fusion_is_bounded(blackout) -> None:  # noqa: ANN001
+    fused, vision = blackout["fused"], blackout["vision_only"]
+    assert vision["valid_fraction_blackout"] == 0.0  # vision alone is blind: invalid throughout
+    assert fused["valid_fraction_blackout"] == 1.0  # 2 s < the 2.5 s horizon
+    assert fused["error_growth_m"] <= 0.10, fused
+    assert fused["max_valid_error_m"] <= 0.10, fused
+    # With vision in view fusion does not worsen the track (the same frames, side by side).
+    assert fused["mean_err_m_with_vision"] <= vision["mean_err_m_with_vision"] + 0.002
+    assert fused["p95_err_m_with_vision"] <= vision["p95_err_m_with_vision"] + 0.005
+    # The twin's gyro bias (0.01 rad/s) and wheel scale (1.03, so 1/1.03 = 0.971 corrects it) were learnt.
+    assert fused["fusion"]["fusion.gyro_bias_rad_s"] > 0.003
+    assert fused["fusion"]["fusion.wheel_scale"] < 0.99
+
+
+def test_no_pose_is_valid_on_odometry_alone_beyond_the_horizon() -> None:
+    from courtloc.sim.fusion_bench import run_scenario
+
+    result = run_scenario("blackout", duration=4.0, blackout_at=1.5, blackout_s=2.0, detail=True,
+                          fusion_config=FusionConfig(enabled=True, horizon_s=0.8))
+    rows = result["fused"]["rows"]
+    last_fix = max(t for t, blind, valid, _ in rows if not blind and t < 1.5 and valid)
+    blind_valid = [t for t, blind, valid, _ in rows if blind and valid]
+    assert blind_valid and max(blind_valid) - last_fix <= 0.8
+    assert any(blind and not valid for _, blind, valid, _ in rows)
+    assert result["fused"]["fusion"]["fusion.beyond_horizon"] > 0
+
+
+def test_a_kidnap_is_noticed_and_never_reported_valid_while_wrong() -> None:
+    from courtloc.sim.fusion_bench import run_scenario
+
+    # At 2 s the robot is displaced by (0.8, -0.4) m and turned 0.3 rad; its wheels and gyro feel nothing.
+    result = run_scenario("kidnap", duration=3.5, kidnap_at=2.0)
+    fused = result["fused"]
+    assert fused["kidnap_noticed_after_s"] <= 0.5
+    assert fused["valid_and_wrong_after_kidnap"] == 0
+    assert fused["recovered_after_s"] <= 1.0  # valid again, and right, once vision and odometry agree
+    assert fused["fusion"]["fusion.recovered"] == 1
+
+
+def test_unflagged_slip_is_cut_to_what_the_robot_can_accelerate() -> None:
+    fusion = OdometryFusion(FusionConfig(enabled=True, max_accel_m_s2=3.0, speed_margin_m_s=0.1))
+    x, t = 0.0, 0.0
+    for i in range(60):  # 1 m/s; then 0.15 s of wheels reading 1.4 m/s (slip); then 1 m/s again
+        speed = 1.4 if 30 <= i < 45 else 1.0
+        t, x = i * 0.01, x + speed * 0.01
+        assert fusion.offer(odometry(t, x=x, seq=i, vx_m_s=speed, window_s=0.01), now_s=t)
+    delta = fusion.buffer.delta(0.0, t, 0.0)
+    # Raw: 0.59 m + 0.06 m of slip. The reference speed may rise 0.03 m/s per 10 ms window, plus the 0.1 m/s
+    # margin on top: sum over k = 1..15 of min(0.4, 0.1 + 0.03 k) * 0.01 s = 0.0465 m of the 0.06 m get through.
+    assert delta is not None and delta.dx == pytest.approx(0.59 + 0.0465, abs=1e-9)
+    assert fusion.counts["slip_limited"] == 9  # until the reference has risen to within the margin of 1.4
