@@ -8,14 +8,17 @@ from __future__ import annotations
 import json
 import logging
 import os
+import sys
 import threading
+import time
 from pathlib import Path
 from typing import Literal
 
 import zenoh
+from pydantic import BaseModel, ConfigDict, Field
+
 from courtloc.common.security import SecurityConfig, client_settings
 from courtloc.common.services_table import Topic
-from pydantic import BaseModel, ConfigDict, Field
 
 log = logging.getLogger(__name__)
 
@@ -91,3 +94,36 @@ def declare_publisher(zsession: zenoh.Session, topic: Topic, robot_id: str) -> z
         congestion_control=_CONGESTION[topic.congestion],
         express=topic.express,
     )
+
+
+class RouterUnreachable(ConnectionError):
+    """No router answered at the configured endpoints in the time given."""
+
+
+def wait_for_router(zenoh_config: ZenohConfig, timeout_s: float | None) -> None:
+    """Return once a session to the configured endpoints opens (then closed again: the caller opens its
+    own); raise RouterUnreachable naming the endpoints when none answers within `timeout_s` (None: wait on).
+
+    While it waits it says once on stderr what it waits for, on a terminal or when it may wait forever
+    (a pipe with a timeout gets only the verdict: one line).
+    """
+    endpoints = ", ".join(zenoh_config.connect) or "any router (scouting)"
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    delay, said = zenoh_config.open_retry_s, False
+    while True:
+        try:
+            zenoh.open(build_zenoh_config(zenoh_config)).close()
+            return
+        except zenoh.ZError as exc:
+            reason = str(exc).split(" at ")[0]
+        left = None if deadline is None else deadline - time.monotonic()
+        if left is not None and left <= 0:
+            raise RouterUnreachable(f"no router answered at {endpoints} within {timeout_s:g} s ({reason}); "
+                                    "is it running, and is --connect / the config's [zenoh] connect right?")
+        if not said and (deadline is None or sys.stderr.isatty()):
+            limit = "until it answers (Ctrl-C stops; --timeout S gives up)" if deadline is None else \
+                f"up to {timeout_s:g} s"
+            log.warning("waiting for a router at %s %s", endpoints, limit)
+            said = True
+        time.sleep(delay if left is None else min(delay, left))
+        delay = min(delay * 2, zenoh_config.open_retry_max_s)

@@ -11,8 +11,9 @@ from __future__ import annotations
 from typing import Any, TypeVar
 
 import msgpack
-from courtloc.common.messages import SCHEMA_VERSION
 from pydantic import BaseModel, ValidationError
+
+from courtloc.common.messages import SCHEMA_VERSION
 
 M = TypeVar("M", bound=BaseModel)
 

@@ -6,9 +6,10 @@ from __future__ import annotations
 
 from typing import Annotated, Literal, Optional, Union
 
+from pydantic import BaseModel, ConfigDict, Field
+
 from courtloc.common.limits import MAX_CHUNK_BYTES, MAX_NAME_CHARS, MAX_UPLOAD_FILES, Name
 from courtloc.common.messages import SCHEMA_VERSION
-from pydantic import BaseModel, ConfigDict, Field
 
 
 class _Msg(BaseModel):

@@ -12,9 +12,10 @@ import threading
 from typing import Callable
 
 import zenoh
+from pydantic import BaseModel
+
 from courtloc.common import codec
 from courtloc.common.services_table import Control
-from pydantic import BaseModel
 
 log = logging.getLogger(__name__)
 _QUEUE_DEPTH = 64

@@ -11,6 +11,8 @@ import socket
 import time
 from typing import Literal, Optional
 
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
 from courtloc.common.limits import (
     MAX_DETAIL_ENTRIES,
     MAX_HITS,
@@ -23,7 +25,6 @@ from courtloc.common.limits import (
     Name,
     Text,
 )
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 SCHEMA_VERSION = 1
 HOST = socket.gethostname()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+
 from courtloc.common.jpeg_header import NotJpeg, jpeg_size
 from courtloc.common.messages import Edges, Frame
 

@@ -15,6 +15,8 @@ import time
 from typing import Any, ClassVar
 
 import zenoh
+from pydantic import BaseModel
+
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, declare_publisher, open_session
 from courtloc.common.control_server import ControlServer
@@ -24,7 +26,6 @@ from courtloc.common.messages import Header, Health
 from courtloc.common.services_table import CONTROLS, HEALTH_TOPICS, SERVICES, TOPICS, Control, Topic, liveliness_key
 from courtloc.common.signals import stop_on_signals
 from courtloc.common.stats import LatencyWindow, RateLimitedLog, RateMeter
-from pydantic import BaseModel
 
 HEALTH_PERIOD_S = 1.0
 

@@ -19,8 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from courtloc.common.services_table import PIT
 from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from courtloc.common.services_table import PIT
 
 IDENTITY_PATTERN = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 MONITOR_IDENTITY = "monitor"  # read-only watcher on the robot (the launcher's status line)

@@ -9,10 +9,11 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
+from pydantic import BaseModel
+
 from courtloc.common.control import ModelReply, ModelRequest
 from courtloc.common.limits import MAX_CHUNK_BYTES, MAX_HITS_BYTES, MAX_IMAGE_BYTES, max_payload_bytes
 from courtloc.common.messages import Edges, Frame, GroundTruth, Health, Odometry, Pose, ShotSolution
-from pydantic import BaseModel
 
 ROOT = "courtloc"
 ROBOT_ID_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")

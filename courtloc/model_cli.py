@@ -8,9 +8,9 @@ from pathlib import Path
 
 from courtloc.cli_errors import RUN_EXIT, UsageError
 from courtloc.cliargs import add_json_argument, json_to_stdout, positive_float, positive_int
-from courtloc.common.bus import open_session
+from courtloc.common.bus import open_session, wait_for_router
 from courtloc.model_client import ModelClient, ModelClientError, push_files
-from courtloc.recording.busargs import add_client_arguments, client_deployment, wait_for_router
+from courtloc.recording.busargs import add_client_arguments, client_deployment
 
 # A pit command asks and expects an answer: it does not wait for a router for ever by default.
 ROUTER_TIMEOUT_S = 10.0

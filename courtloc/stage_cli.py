@@ -16,7 +16,7 @@ from courtloc.common.exposure import insecure_exposure, is_loopback, warn_while_
 from courtloc.common.security import router_settings
 from courtloc.common.services_table import SERVICES
 from courtloc.common.signals import stop_on_signals
-from courtloc.recording.busargs import add_timeout_argument, wait_for_router
+from courtloc.recording.busargs import add_timeout_argument
 from courtloc.security.acl import access_control
 from courtloc.services.deployment import load_deployment
 
@@ -37,23 +37,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     router.set_defaults(func=run_router)
 
 
-def stage_argv(name: str, config: Path | None, verbose: int = 0) -> list[str]:
+def stage_argv(name: str, config: Path | None, verbose: int = 0, timeout_s: float | None = None) -> list[str]:
     """The command line of a stage process: its own entry point, which loads only that stage."""
     return [sys.executable, "-m", f"courtloc.services.{name}", *(["-v"] * verbose),
-            *(["--config", str(config)] if config is not None else [])]
+            *(["--config", str(config)] if config is not None else []),
+            *(["--timeout", f"{timeout_s:g}"] if timeout_s is not None else [])]
 
 
 def run_stage(args: argparse.Namespace) -> int:
     if args.service not in SERVICES:
         raise UsageError(f"no stage {args.service!r}; available: {', '.join(SERVICES)}")
-    config = load_deployment(args.config)  # a bad file or field raises, named: one line
-    if config.zenoh.mode == "client":  # a peer opens without a router; a client waits for one
-        wait_for_router(config.zenoh, args.timeout)
+    load_deployment(args.config)  # a bad file or field raises, named: one line (the stage reads it again)
     logging.shutdown()
     sys.stdout.flush()
     sys.stderr.flush()
     # This process becomes the stage's own (a stage process never loads the CLI, the lab or other stages).
-    os.execv(sys.executable, stage_argv(args.service, args.config, args.verbose))
+    os.execv(sys.executable, stage_argv(args.service, args.config, args.verbose, args.timeout))
 
 
 def run_router(args: argparse.Namespace) -> int:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Iterable
 
 import numpy as np
+
 from courtloc.lab.residuals import residuals_at
 from courtloc.localizer.config import FitConfig
 from courtloc.localizer.court_field import CourtField, is_thin_band

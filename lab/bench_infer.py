@@ -25,6 +25,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from courtloc.cliargs import add_json_argument, positive_int
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.control import Activate, ModelRequest
 from courtloc.common.messages import Edges, Header
@@ -40,8 +42,6 @@ from courtloc.services.infer.service import InferService
 from courtloc.sim.render import Renderer
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
-
-from courtloc.cliargs import add_json_argument, positive_int
 
 SWAP_FPS = 30.0
 SWAP_LEAD_FRAMES = 60  # frames served before the swap starts: the "before" distribution

@@ -21,6 +21,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from courtloc.cliargs import add_json_argument, nonnegative_int, positive_int
 from courtloc.lab.eval import default_model_path
 from courtloc.localizer import motion
 from courtloc.localizer.fit import kernel_active, kernel_enabled
@@ -28,8 +30,6 @@ from courtloc.localizer.geometric import GeometricLocalizer
 from courtloc.localizer.predictor import load_predictor
 from courtloc.sim.edges import scan_hits
 from courtloc.sim.render import Renderer
-
-from courtloc.cliargs import add_json_argument, nonnegative_int, positive_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -21,6 +21,8 @@ import time
 
 import cv2
 import numpy as np
+
+from courtloc.cliargs import add_json_argument, positive_float, positive_int
 from courtloc.scan.config import PreprocessConfig
 from courtloc.scan.hsv_mask import WhiteMask
 from courtloc.scan.preprocessor import Preprocessor
@@ -30,8 +32,6 @@ from courtloc.scan.synthetic import line_frame
 from courtloc.sim.render import Renderer
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
-
-from courtloc.cliargs import add_json_argument, positive_float, positive_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

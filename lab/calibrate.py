@@ -20,14 +20,15 @@ from typing import Optional, Sequence
 
 import cv2
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.optimize import least_squares
+from scipy.spatial import cKDTree
+
 from courtloc.sim.edges import dot_centres, scan_hits
 from courtloc.sim.labels import PoseLabels, lag_corrected, read_pose_csv
 from courtloc.sim.render import Renderer
 from courtloc.world.camera import CameraModel
 from courtloc.world.court import Court
-from pydantic import BaseModel, ConfigDict, Field
-from scipy.optimize import least_squares
-from scipy.spatial import cKDTree
 
 log = logging.getLogger(__name__)
 

@@ -9,6 +9,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from pydantic import ValidationError
+
 from courtloc.lab.intrinsics import (
     Board,
     IntrinsicsError,
@@ -18,12 +20,10 @@ from courtloc.lab.intrinsics import (
     import_camera_info,
 )
 from courtloc.lab.mount import MountError, PoseFrames, fit_mount, hits_of_frames, mounted_camera
+from courtloc.recording.busargs import add_client_arguments, client_deployment
 from courtloc.sim.live_frames import grab_frames
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
-from pydantic import ValidationError
-
-from courtloc.recording.busargs import add_client_arguments, client_deployment
 
 log = logging.getLogger(__name__)
 

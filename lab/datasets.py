@@ -33,11 +33,12 @@ from typing import Any, Iterable, Literal, Sequence
 
 import cv2
 import numpy as np
+from pydantic import BaseModel
+
 from courtloc.localizer.paper_input import hits_to_dot_image
 from courtloc.scan.config import PreprocessConfig
 from courtloc.scan.preprocessor import Preprocessor
 from courtloc.scan.seed_dots import image_to_hits
-from pydantic import BaseModel
 
 log = logging.getLogger(__name__)
 

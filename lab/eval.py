@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Optional, Protocol
 
 import numpy as np
+
 from courtloc.lab.datasets import Dataset
 from courtloc.lab.metrics import PoseMetrics, compute_metrics, position_errors
 from courtloc.lab.seed_frames import frame_time

@@ -5,11 +5,10 @@ import argparse
 import json
 from pathlib import Path
 
+from courtloc.cliargs import add_json_argument, json_to_stdout, positive_float, positive_int
 from courtloc.lab.dataset_args import add_dataset_arguments
 from courtloc.lab.datasets import Dataset, duplicate_report
 from courtloc.lab.eval import evaluate, open_model, write_plots, write_predictions_csv
-
-from courtloc.cliargs import add_json_argument, json_to_stdout, positive_float, positive_int
 
 
 def register(sub: argparse._SubParsersAction) -> None:

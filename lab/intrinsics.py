@@ -17,8 +17,9 @@ from typing import Optional
 
 import cv2
 import numpy as np
-from courtloc.world.camera import CameraModel
 from pydantic import BaseModel, ConfigDict, Field
+
+from courtloc.world.camera import CameraModel
 
 log = logging.getLogger(__name__)
 

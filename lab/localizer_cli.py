@@ -7,6 +7,9 @@ import json
 from pathlib import Path
 
 import numpy as np
+
+from courtloc.cli_errors import UsageError
+from courtloc.cliargs import add_json_argument, nonnegative_float, positive_int
 from courtloc.lab.datasets import load_dataset
 from courtloc.lab.eval import default_model_path
 from courtloc.lab.package_build import build_package
@@ -20,9 +23,6 @@ from courtloc.localizer.manifest import TrainingData
 from courtloc.localizer.package import load_package
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
-
-from courtloc.cli_errors import UsageError
-from courtloc.cliargs import add_json_argument, nonnegative_float, positive_int
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -14,8 +14,9 @@ from __future__ import annotations
 from typing import Optional
 
 import numpy as np
-from courtloc.world.angles import wrap_angle
 from pydantic import BaseModel
+
+from courtloc.world.angles import wrap_angle
 
 
 class PoseMetrics(BaseModel):

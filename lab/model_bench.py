@@ -18,12 +18,12 @@ import time
 from pathlib import Path
 
 import numpy as np
-from courtloc.lab.datasets import Dataset
-from courtloc.lab.eval import PaperOnnxModel
-from courtloc.lab.metrics import compute_metrics
 
 from courtloc.cli_errors import RUN_EXIT, UsageError
 from courtloc.cliargs import add_json_argument, nonnegative_int, positive_int
+from courtloc.lab.datasets import Dataset
+from courtloc.lab.eval import PaperOnnxModel
+from courtloc.lab.metrics import compute_metrics
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

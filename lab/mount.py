@@ -18,6 +18,9 @@ from typing import Optional, Sequence
 
 import cv2
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.spatial import cKDTree
+
 from courtloc.lab.calibrate import (
     CalibrationOptions,
     DotFrames,
@@ -27,10 +30,9 @@ from courtloc.lab.calibrate import (
     calibrate,
     match_edges,
 )
+from courtloc.sim.edges import scan_hits
 from courtloc.world.camera import CameraModel
 from courtloc.world.court import Court
-from pydantic import BaseModel, ConfigDict, Field
-from scipy.spatial import cKDTree
 
 MOUNT_PARAMETERS = ("height", "pitch", "roll", "mount_x", "mount_y", "mount_yaw")
 UNITS = {"height": ("m", 1.0), "pitch": ("deg", 180 / math.pi), "roll": ("deg", 180 / math.pi),
@@ -110,8 +112,7 @@ def frame_files(folder: Path) -> list[Path]:
 def hits_of_frames(sets: Sequence[PoseFrames], min_hits: int = 20, hits_of=None) -> DotFrames:
     """The preprocess hits of every frame, as `sim.calibrate` dots with the pose of their set."""
 
-    if hits_of is None:
-        pass
+    hits_of = hits_of or scan_hits
     uv, pose, frame, names = [], [], [], []
     size: Optional[tuple[int, int]] = None
     for pose_frames in sets:

@@ -5,6 +5,7 @@ import logging
 from pathlib import Path
 
 import onnx
+
 from courtloc.lab.onnx_graph import INPUT, OUTPUT, build_graph
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.manifest import (

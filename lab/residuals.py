@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 from courtloc.lab.seed_frames import SeedFrames
 from courtloc.localizer.config import FitConfig, LocalizerConfig
 from courtloc.localizer.court_field import CourtField, is_thin_band

@@ -21,6 +21,7 @@ import logging
 import time
 
 import numpy as np
+
 from courtloc.lab import band_bias_calibration
 from courtloc.lab.metrics import compute_metrics
 from courtloc.lab.seed_frames import SeedFrames, frame_time

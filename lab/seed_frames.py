@@ -8,6 +8,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
 from courtloc.lab.datasets import load_dataset
 from courtloc.world.angles import wrap_angle
 

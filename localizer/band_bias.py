@@ -19,6 +19,7 @@ here for the numpy fit, `band_offset` in fit_kernel.c (tested equal).
 from __future__ import annotations
 
 import numpy as np
+
 from courtloc.localizer.config import FitConfig
 from courtloc.localizer.court_field import is_thin_band
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
+
 from courtloc.localizer import band_bias, fit_kernel
 from courtloc.localizer.config import FitConfig, QualityConfig
 from courtloc.localizer.court_field import CourtField

@@ -12,6 +12,7 @@ import math
 import weakref
 
 import numpy as np
+
 from courtloc.localizer.config import FitConfig
 from courtloc.localizer.court_field import THIN_BAND_HALF_WIDTH_M, CourtField
 from courtloc.localizer.projection import ProjectedHits

@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from courtloc.localizer import motion
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.court_field import CourtField

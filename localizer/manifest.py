@@ -18,9 +18,10 @@ from pathlib import Path
 from typing import Literal, Optional, Union
 
 import onnx
-from courtloc.scan.config import DEFAULT_HSV_RANGES, ScanConfig
 from onnx import numpy_helper
 from pydantic import BaseModel, ConfigDict, Field
+
+from courtloc.scan.config import DEFAULT_HSV_RANGES, ScanConfig
 
 MANIFEST_KEY = "courtloc.manifest"
 SCHEMA = "courtloc.manifest/1"

@@ -10,8 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import onnx
-from courtloc.localizer.manifest import Manifest, ManifestError, manifest_from_model, weights_sha256
 from onnx import numpy_helper
+
+from courtloc.localizer.manifest import Manifest, ManifestError, manifest_from_model, weights_sha256
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from courtloc.localizer.config import MotionConfig
 from courtloc.world.angles import wrap_angle
 

@@ -39,9 +39,10 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
 from courtloc.common.messages import HOST, Odometry
 from courtloc.localizer import motion
-from pydantic import BaseModel, ConfigDict, Field
 
 
 class FusionConfig(BaseModel):

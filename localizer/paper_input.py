@@ -11,6 +11,7 @@ Both give the same network output (tested). A sparse input with K = 0 is valid (
 from __future__ import annotations
 
 import numpy as np
+
 from courtloc.scan.seed_dots import draw_hits
 
 FRAME_HEIGHT = 480

@@ -22,6 +22,8 @@ from typing import Optional, Protocol, Sequence
 
 import numpy as np
 import onnxruntime as ort
+from pydantic import BaseModel, Field
+
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import kernel_active
 from courtloc.localizer.geometric import GeometricLocalizer, LocalizeResult
@@ -30,7 +32,6 @@ from courtloc.localizer.model_file import ModelFile
 from courtloc.localizer.package import load_package
 from courtloc.localizer.paper_input import dense_input, hits_to_dense_input, hits_to_sparse_input, sparse_input
 from courtloc.world.court import Court, load_court
-from pydantic import BaseModel, Field
 
 log = logging.getLogger(__name__)
 

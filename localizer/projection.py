@@ -23,6 +23,7 @@ from __future__ import annotations
 from functools import cached_property
 
 import numpy as np
+
 from courtloc.world.camera import CameraModel
 
 try:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from courtloc.localizer.config import SearchConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.projection import ProjectedHits

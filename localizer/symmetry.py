@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from courtloc.localizer.config import Half
 from courtloc.world.angles import wrap_angle
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 from courtloc.localizer.odometry_fusion import OdometryFusion, fused_track
 from courtloc.localizer.predictor import Prediction, Predictor
 

@@ -11,6 +11,7 @@ from typing import Sequence
 
 import cv2
 import numpy as np
+
 from courtloc.scan.config import HsvRange
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+
 from courtloc.common.payloads import FrameError, check_bgr
 from courtloc.scan.config import PreprocessConfig
 from courtloc.scan.hsv_mask import WhiteMask

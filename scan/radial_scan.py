@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
 from courtloc.common.payloads import HIT_DTYPE
 from courtloc.scan.config import ScanConfig
 from courtloc.scan.hsv_mask import WhiteMask

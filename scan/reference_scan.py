@@ -23,6 +23,7 @@ import math
 from typing import Callable
 
 import numpy as np
+
 from courtloc.scan.config import PreprocessConfig, ScanConfig
 from courtloc.scan.hsv_mask import white_mask
 

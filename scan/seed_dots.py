@@ -11,6 +11,7 @@ from typing import Optional
 
 import cv2
 import numpy as np
+
 from courtloc.common.payloads import HIT_DTYPE
 from courtloc.scan.config import ScanConfig
 from courtloc.scan.radial_scan import RadialScanner, empty_hits

@@ -11,7 +11,9 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from courtloc.common.bus import ZenohConfig
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from courtloc.common.bus import RouterUnreachable, ZenohConfig, wait_for_router
 from courtloc.common.config_loader import ConfigError, load_model, resolve_relative_paths
 from courtloc.common.exposure import insecure_exposure, is_loopback, warn_while_insecure
 from courtloc.common.runtime import Service
@@ -21,7 +23,6 @@ from courtloc.scan.config import PreprocessConfig
 from courtloc.services.camera.config import CameraConfig
 from courtloc.services.infer.config import InferConfig
 from courtloc.services.shooter_bridge.config import ShooterConfig
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
@@ -113,6 +114,7 @@ def stage_main(stage_class: type[Service], argv: Sequence[str] | None = None) ->
     parser = argparse.ArgumentParser(prog=f"python -m courtloc.services.{stage_class.name}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     parser.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in)")
+    parser.add_argument("--timeout", type=float, default=None, help="give up when no router answers within S s")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -124,7 +126,13 @@ def stage_main(stage_class: type[Service], argv: Sequence[str] | None = None) ->
     name = stage_class.name
     # Each stage presents its own certificate and password (the ACL grants per identity).
     zenoh_config = config.zenoh.model_copy(update={"security": with_identity(config.zenoh.security, name)})
-    stage = stage_class(config.robot_id, zenoh_config, getattr(config, name))
+    try:
+        stage = stage_class(config.robot_id, zenoh_config, getattr(config, name))  # a bad input file stops it here
+        if zenoh_config.mode == "client":  # a peer opens without a router; a client waits for one
+            wait_for_router(zenoh_config, args.timeout)
+    except (ValueError, OSError) as exc:  # ConfigError, a table or credential file, no router: one line
+        print(f"{name}: {exc}", file=sys.stderr)
+        return 1 if isinstance(exc, RouterUnreachable) else 2
     warn_while_insecure(insecure_exposure(config.zenoh.listen, config.zenoh.security is not None),
                         stage.stop_event, logging.getLogger(f"courtloc.{name}"))
     return stage.run()

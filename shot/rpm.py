@@ -18,8 +18,9 @@ from pathlib import Path
 from typing import Callable, Optional, Protocol, Sequence
 
 import numpy as np
-from courtloc.shot import ballistics
 from scipy.interpolate import PchipInterpolator
+
+from courtloc.shot import ballistics
 
 log = logging.getLogger(__name__)
 

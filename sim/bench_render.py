@@ -6,13 +6,13 @@ import json
 import time
 
 import numpy as np
+from scipy.spatial import cKDTree
+
+from courtloc.cliargs import add_json_argument, nonnegative_int, positive_int
 from courtloc.sim.edges import scan_hits
 from courtloc.sim.render import Renderer, RenderOptions
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
-from scipy.spatial import cKDTree
-
-from courtloc.cliargs import add_json_argument, nonnegative_int, positive_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

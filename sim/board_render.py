@@ -12,6 +12,7 @@ from typing import Sequence
 
 import cv2
 import numpy as np
+
 from courtloc.world.camera import CameraModel
 
 Vector = Sequence[float]

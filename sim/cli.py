@@ -13,6 +13,9 @@ import sys
 import time
 
 import numpy as np
+
+from courtloc.cli_errors import UsageError
+from courtloc.cliargs import nonnegative_int, positive_int
 from courtloc.lab.calibrate import (
     SEED_LAG_S,
     CalibrationOptions,
@@ -27,9 +30,6 @@ from courtloc.sim.render import RenderOptions
 from courtloc.sim.synth import SynthConfig, synth
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
-
-from courtloc.cli_errors import UsageError
-from courtloc.cliargs import nonnegative_int, positive_int
 
 # Modules adding sub-commands to `courtloc dataset` (this module adds `synth` itself).
 DATASET_COMMAND_MODULES: tuple[str, ...] = ("courtloc.recording.cli",)

@@ -8,6 +8,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+
 from courtloc.scan.config import PreprocessConfig
 from courtloc.scan.preprocessor import Preprocessor
 from courtloc.scan.seed_dots import dots_to_hits, draw_hits

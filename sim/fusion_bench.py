@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+
 from courtloc.lab.eval import default_model_path
 from courtloc.localizer.odometry_fusion import FusionConfig, OdometryFusion, fused_track
 from courtloc.localizer.predictor import load_predictor

@@ -10,11 +10,12 @@ from pathlib import Path
 from typing import Any
 
 import cv2
+
 from courtloc.common import codec
 from courtloc.common.bus import open_session
 from courtloc.common.messages import Frame
-from courtloc.common.services_table import TOPICS
 from courtloc.common.payloads import FrameError, decode_frame
+from courtloc.common.services_table import TOPICS
 
 log = logging.getLogger(__name__)
 

@@ -14,11 +14,12 @@ from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
 from courtloc.common.messages import Odometry
 from courtloc.services.shooter_bridge.odometry import OdometryConfig, OdometryIntake
 from courtloc.services.shooter_bridge.protocol import OdometrySample, OdomFlag
 from courtloc.sim.trajectory import Trajectory, wrap_angle
-from pydantic import BaseModel, ConfigDict, Field
 
 
 class OdometrySimConfig(BaseModel):

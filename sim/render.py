@@ -11,9 +11,10 @@ from typing import Literal, Optional
 
 import cv2
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
 from courtloc.world.camera import CameraModel, Pose
 from courtloc.world.court import Court
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 Range = tuple[float, float]
 _PANORAMA_WIDTH = 2048  # pixels for 360 degrees of arena backdrop

@@ -10,11 +10,12 @@ from pathlib import Path
 from typing import Literal, Optional
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
 from courtloc.sim.render import Renderer, RenderOptions
 from courtloc.sim.trajectory import CsvTrajectory, RandomWalkTrajectory, WaypointTrajectory
 from courtloc.world.camera import Pose, load_camera
 from courtloc.world.court import load_court
-from pydantic import BaseModel, ConfigDict, Field
 
 log = logging.getLogger(__name__)
 

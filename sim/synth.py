@@ -15,12 +15,13 @@ from typing import Callable, Literal, Optional
 
 import cv2
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
 from courtloc.sim.edges import hits_image, scan_hits
 from courtloc.sim.labels import SEED_COLUMNS, yaw_to_orientation_z
 from courtloc.sim.render import Renderer, RenderOptions
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
-from pydantic import BaseModel, ConfigDict, Field
 
 log = logging.getLogger(__name__)
 

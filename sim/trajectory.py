@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Protocol, Sequence
 
 import numpy as np
+
 from courtloc.sim.labels import orientation_z_to_yaw
 from courtloc.world.angles import wrap_angle
 from courtloc.world.court import Court

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import zenoh
+
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.services_table import TOPICS, all_liveliness_key, service_of_liveliness_key

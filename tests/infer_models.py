@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 import onnx
+from onnx import TensorProto, helper, numpy_helper
+
 from courtloc.common.messages import Edges, Header
 from courtloc.common.payloads import hits_to_bytes
 from courtloc.localizer.manifest import (
@@ -29,7 +31,6 @@ from courtloc.localizer.manifest import (
     write_manifest,
 )
 from courtloc.models import bundled_package as bundled_default
-from onnx import TensorProto, helper, numpy_helper
 
 COURT = CAMERA = "seed-gazebo"
 WIDTH, HEIGHT, CROP_TOP = 640, 480, 200

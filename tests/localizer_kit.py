@@ -39,6 +39,7 @@ def rounding_tolerances(field, hits, starts, cfg, quality, iterations, ref):  # 
     quantity -> absolute tolerance of its largest entry's difference.
     """
     import numpy as np
+
     from courtloc.localizer.fit import fit_poses, kernel_enabled
 
     starts = np.atleast_2d(np.asarray(starts, np.float64))

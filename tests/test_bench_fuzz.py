@@ -14,11 +14,11 @@ from pathlib import Path
 import msgpack
 import pytest
 from buskit import PYTHON
+
+from courtloc.bench_fuzz import HOSTILE_SEQ, hostile_catalogue, mutate
 from courtloc.common import codec
 from courtloc.common.messages import Header, Pose
 from courtloc.common.services_table import CONTROLS, TOPICS
-
-from courtloc.bench_fuzz import HOSTILE_SEQ, hostile_catalogue, mutate
 
 
 def _refused(path: str, payload: bytes) -> bool:

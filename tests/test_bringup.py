@@ -10,11 +10,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
+from courtloc.cli import main
 from courtloc.sim.board_render import board_pose_looking_at, render_board
 from courtloc.world.camera import CameraModel, load_camera
 from courtloc.world.court import load_court
-
-from courtloc.cli import main
 
 COURT = "robocon2025"
 BOARD = (9, 6, 0.03)  # inner corners, square side in metres
@@ -173,6 +173,7 @@ def test_mount_live_takes_frames_from_the_running_camera_topic(tmp_path, capsys)
     import threading
 
     from buskit import PYTHON, BusClient, free_port, start_router, write_config
+
     from courtloc.common import codec
     from courtloc.common.messages import Frame, Header
     from courtloc.sim.render import Renderer

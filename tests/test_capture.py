@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 from buskit import PYTHON, BusClient, Proc, endpoint, free_port, start_router, start_stage, write_config
+
 from courtloc.common import codec
 from courtloc.common.messages import Frame, Header, Pose
-
 from courtloc.recording.capture import NearestMatcher, orientation_z
 
 ROBOT = "robot1"

@@ -1,5 +1,6 @@
 import msgpack
 import pytest
+
 from courtloc.common import codec
 from courtloc.common.messages import SCHEMA_VERSION, Edges, Frame, Header, Health, Pose
 from courtloc.common.services_table import TOPICS

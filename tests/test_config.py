@@ -3,6 +3,7 @@ import sys
 from pathlib import Path
 
 import pytest
+
 from courtloc.common.config_loader import ConfigError
 from courtloc.services.deployment import DeploymentConfig, load_deployment
 

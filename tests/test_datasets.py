@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from courtloc.lab.datasets import (
     DatasetError,
     duplicate_report,
@@ -108,6 +109,7 @@ def test_seed_dataset_loads(seed_dir: Path) -> None:
 
 def test_raw_frames_go_through_the_preprocessor(tmp_path: Path) -> None:
     import cv2
+
     from courtloc.scan.config import PreprocessConfig
     from courtloc.scan.preprocessor import Preprocessor
     from courtloc.scan.synthetic import line_frame

@@ -15,10 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from buskit import BusClient, endpoint, free_port
+from test_shooter_link import FakeMcu
+
 from courtloc.services.shooter_bridge.protocol import Command
 from courtloc.shot.geometry import Pose2D, ShooterMount, aim, ring_for
 from courtloc.shot.rpm import RpmTable
-from test_shooter_link import FakeMcu
 
 pytestmark = [pytest.mark.integration, pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs ptys")]
 

@@ -9,10 +9,11 @@ from pathlib import Path
 
 import pytest
 from buskit import BusClient, free_port, start_router, start_stage, write_config
+from infer_models import TwinFrames
+
 from courtloc.common import codec
 from courtloc.common.messages import Edges, Header, Odometry
 from courtloc.common.payloads import hits_to_bytes
-from infer_models import TwinFrames
 
 pytestmark = pytest.mark.integration
 

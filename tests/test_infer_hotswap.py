@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 import zenoh
 from buskit import PYTHON, BusClient, free_port, start_router, start_stage, write_config
+from infer_models import Pacer, TwinFrames, relabelled_package
+
 from courtloc.common import codec
 from courtloc.common.services_table import TOPICS
-from infer_models import Pacer, TwinFrames, relabelled_package
 
 pytestmark = pytest.mark.integration
 

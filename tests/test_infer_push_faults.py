@@ -12,11 +12,11 @@ from typing import Any, Iterator
 
 import pytest
 from buskit import BusClient, free_port, start_router, start_stage, write_config
-from courtloc.common.messages import Pose
-from courtloc.services.infer.store import INCOMING, ModelStore
 from infer_models import TwinFrames, relabelled_package, request_pose, run_model_cli, tiny_paper_model
 
+from courtloc.common.messages import Pose
 from courtloc.model_client import ModelClient
+from courtloc.services.infer.store import INCOMING, ModelStore
 
 pytestmark = pytest.mark.integration
 

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import pytest
 from buskit import BusClient, free_port, start_router, start_stage, write_config
+
 from courtloc.common import codec
 from courtloc.common.control import ModelReply, ModelRequest, Rollback
 from courtloc.common.services_table import CONTROLS

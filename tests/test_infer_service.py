@@ -9,12 +9,12 @@ from typing import Any, Iterator
 
 import pytest
 from buskit import BusClient, free_port, start_router, start_stage, write_config
-from courtloc.common.messages import Pose
-from courtloc.common.signing import generate_signing_key, sign_model
-from courtloc.services.infer.store import INCOMING, ModelStore
 from infer_models import TwinFrames, bundled_default, request_pose, run_model_cli, tiny_paper_model, truncated_copy
 
+from courtloc.common.messages import Pose
+from courtloc.common.signing import generate_signing_key, sign_model
 from courtloc.security.pki import write_signing_keys
+from courtloc.services.infer.store import INCOMING, ModelStore
 
 pytestmark = pytest.mark.integration
 

@@ -5,6 +5,7 @@ import hashlib
 from pathlib import Path
 
 import pytest
+
 from courtloc.common.control import FileSpec
 from courtloc.services.infer.store import ModelRef, ModelStore, StoreError
 from courtloc.services.infer.uploads import UploadError, Uploads

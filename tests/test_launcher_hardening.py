@@ -11,11 +11,11 @@ from pathlib import Path
 
 import pytest
 from buskit import PYTHON, BusClient, Proc, endpoint, free_port, start_router
-from courtloc.common.services_table import all_liveliness_key
-from courtloc.services.deployment import DeploymentConfig, LauncherConfig
 
+from courtloc.common.services_table import all_liveliness_key
 from courtloc.launcher import Child, Supervisor
 from courtloc.port_holder import endpoint_port, port_holder
+from courtloc.services.deployment import DeploymentConfig, LauncherConfig
 
 SLEEPER = [sys.executable, "-c", "import time; time.sleep(120)"]
 

@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from localizer_kit import twin_setup
+from pydantic import ValidationError
+
 from courtloc.lab import band_bias_calibration
 from courtloc.localizer import band_bias
 from courtloc.localizer.config import FitConfig, LocalizerConfig
 from courtloc.localizer.court_field import THIN_BAND_HALF_WIDTH_M
-from localizer_kit import twin_setup
-from pydantic import ValidationError
 
 # Where the twin's rendered frames see thin lines from a few to ~9 m away.
 POSES = [(-1.0, 0.3, 0.1), (-2.0, -1.0, -0.2), (0.5, 2.0, 0.3), (-3.0, 0.0, 0.0), (1.0, -2.5, 2.9), (2.0, 1.0, 3.1)]

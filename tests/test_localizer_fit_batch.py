@@ -3,10 +3,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from localizer_kit import assert_fits_agree, converged_fit_tolerance, rounding_tolerances, twin_setup
+
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import fit_pose, fit_poses
 from courtloc.localizer.geometric import GeometricLocalizer
-from localizer_kit import assert_fits_agree, converged_fit_tolerance, rounding_tolerances, twin_setup
 
 POSES = [(2.0, 1.0, 0.3), (4.5, -2.0, 2.0), (-1.0, -2.0, 0.5)]
 

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from courtloc.lab.package_build import build_package
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import fit_pose

@@ -17,11 +17,12 @@ import math
 
 import numpy as np
 import pytest
+from localizer_kit import assert_fits_agree, converged_fit_tolerance, rounding_tolerances, twin_setup
+
 from courtloc.localizer import fit_kernel
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import fit_poses, kernel_active, kernel_enabled
 from courtloc.localizer.projection import lookup_table
-from localizer_kit import assert_fits_agree, converged_fit_tolerance, rounding_tolerances, twin_setup
 
 pytestmark = pytest.mark.skipif(not fit_kernel.available(), reason="compiled fit kernel not built (no C compiler)")
 

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from courtloc.localizer import motion
 from courtloc.localizer.config import LocalizerConfig, MotionConfig
 from courtloc.localizer.geometric import GeometricLocalizer

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from courtloc.localizer.manifest import InputSpec, Manifest, ManifestError, OutputSpec, TensorSpec, attach_manifest
 from courtloc.localizer.predictor import load_predictor
 
@@ -53,9 +54,10 @@ def test_file_without_manifest_is_refused(tmp_path):
 
 def test_geometric_predictor_tracks_with_the_motion_filter_state() -> None:
     """What the infer stage runs per frame: the first frame searches, later ones track from the returned state."""
+    from infer_models import TwinFrames
+
     from courtloc.lab.eval import default_model_path
     from courtloc.localizer.motion import MotionState
-    from infer_models import TwinFrames
 
     poses = [(1.0, -0.5, 0.3), (1.03, -0.5, 0.31), (1.06, -0.49, 0.32)]
     frames = TwinFrames(poses)

@@ -7,9 +7,10 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from localizer_kit import twin_setup
+
 from courtloc.lab.residuals import residual_table
 from courtloc.lab.seed_frames import SeedFrames
-from localizer_kit import twin_setup
 
 POSES = [(-1.0, 0.3, 0.1), (-2.0, -1.0, -0.2), (0.5, 2.0, 0.3), (-3.0, 0.0, 0.0), (1.0, -2.5, 2.9), (2.0, 1.0, 3.1)]
 

@@ -7,6 +7,8 @@ import numpy as np
 import onnx
 import onnxruntime as ort
 import pytest
+from onnx import TensorProto, helper, numpy_helper
+
 from courtloc.localizer.manifest import (
     InputSpec,
     Manifest,
@@ -19,7 +21,6 @@ from courtloc.localizer.manifest import (
     weights_sha256,
     write_manifest,
 )
-from onnx import TensorProto, helper, numpy_helper
 
 
 def _tiny_model(path: Path, weight: np.ndarray) -> None:

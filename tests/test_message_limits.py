@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import zenoh
 from buskit import BusClient, free_port, start_router, start_stage, write_config
+
 from courtloc.common import codec
 from courtloc.common.control import ModelRequest, PushChunk
 from courtloc.common.limits import (

@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+
 from courtloc.lab.metrics import compute_metrics
 from courtloc.world.angles import wrap_angle
 
@@ -56,6 +57,7 @@ def test_eval_command_runs_without_torch(tmp_path) -> None:  # noqa: ANN001
     import sys
 
     import onnx
+
     from courtloc.localizer.manifest import InputSpec, Manifest, OutputSpec, TensorSpec, attach_manifest
     from courtloc.training import paper_onnx
     from courtloc.training.toy_data import write_toy_dataset

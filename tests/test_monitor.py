@@ -14,14 +14,14 @@ import cv2
 import numpy as np
 import pytest
 from buskit import PYTHON, BusClient, Proc, endpoint, free_port, start_router
+
 from courtloc.common import codec
 from courtloc.common.messages import Edges, Frame, GroundTruth, Header, Health, Pose, ShotSolution
-from courtloc.services.deployment import DeploymentConfig
-from courtloc.world.court import load_court
-
 from courtloc.monitor.state import court_payload
 from courtloc.monitor.thumbnail import Thumbnailer
 from courtloc.monitor.watcher import MonitorWatcher
+from courtloc.services.deployment import DeploymentConfig
+from courtloc.world.court import load_court
 
 ROBOT = "robot1"
 

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from courtloc.common.messages import Header, Odometry
 from courtloc.localizer import motion
 from courtloc.localizer.config import MotionConfig

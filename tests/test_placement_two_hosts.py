@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 from buskit import PYTHON, BusClient, Proc, endpoint, free_port, start_router, start_stage, write_config
+
 from courtloc.services.deployment import load_deployment
 
 pytestmark = pytest.mark.integration

@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from courtloc.scan.config import PreprocessConfig
 from courtloc.scan.reference_scan import reference_preprocess
 from courtloc.scan.synthetic import line_frame

@@ -4,13 +4,14 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from pydantic import ValidationError
+
 from courtloc.common.jpeg_header import jpeg_size
 from courtloc.common.payloads import FrameError, decode_frame, hits_from_bytes, hits_to_bytes
 from courtloc.scan.config import PreprocessConfig
 from courtloc.scan.preprocessor import Preprocessor
 from courtloc.scan.reference_scan import reference_preprocess
 from courtloc.scan.synthetic import line_frame
-from pydantic import ValidationError
 
 
 @pytest.fixture(scope="module")

@@ -7,6 +7,7 @@ import shutil
 import cv2
 import numpy as np
 import pytest
+
 from courtloc.scan.config import HsvRange, PreprocessConfig, ScanConfig
 from courtloc.scan.hsv_mask import WhiteMask, white_mask
 from courtloc.scan.preprocessor import Preprocessor

@@ -6,6 +6,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from courtloc.scan.config import PreprocessConfig, ScanConfig
 from courtloc.scan.preprocessor import Preprocessor
 from courtloc.scan.radial_scan import RadialScanner

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from courtloc.scan.config import PreprocessConfig
 from courtloc.scan.hsv_mask import white_mask
 from courtloc.scan.preprocessor import Preprocessor

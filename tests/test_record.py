@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from buskit import PYTHON, BusClient, Proc, endpoint, free_port, start_router
+from mcap.reader import make_reader
+
 from courtloc.common import codec
 from courtloc.common.messages import Frame, Header, Health, Pose
 from courtloc.common.services_table import TOPICS
-from mcap.reader import make_reader
-
 from courtloc.recording.jsonview import json_view, schema_data
 from courtloc.recording.mcapfile import VIEW_JSON, Limits, McapSeries, RecordItem, read_series, series_files
 from courtloc.recording.recorder import resolve_topics

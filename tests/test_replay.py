@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 from buskit import PYTHON, BusClient, Proc, endpoint, free_port, start_router, start_stage, write_config
+
 from courtloc.common import codec
 from courtloc.common.messages import Edges, Frame, Header, Pose
 from courtloc.common.services_table import TOPICS
-
 from courtloc.recording.jsonview import json_view
 from courtloc.recording.mcapfile import Limits, McapSeries, RecordItem, read_series
 from courtloc.recording.replay import Recorded, rewrite

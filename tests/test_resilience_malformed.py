@@ -16,6 +16,7 @@ import msgpack
 import pytest
 import zenoh
 from buskit import BusClient, Proc, free_port, start_router, start_stage, write_config
+
 from courtloc.common.messages import SCHEMA_VERSION, Header
 from courtloc.common.services_table import SERVICES, TOPICS
 

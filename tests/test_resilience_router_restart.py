@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 from buskit import BusClient, folder_camera_toml, free_port, start_router, start_stage, write_config, write_line_frames
+
 from courtloc.common.services_table import SERVICES
 
 pytestmark = pytest.mark.integration

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 from buskit import PYTHON, BusClient, Proc, endpoint, folder_camera_toml, free_port, write_line_frames
-from courtloc.common.bus import ZenohConfig, open_session
 
 from courtloc.bench_soak import child_processes
+from courtloc.common.bus import ZenohConfig, open_session
 
 pytestmark = pytest.mark.integration
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 
 import zenoh
+
 from courtloc.common.security import MONITOR_IDENTITY, PIT_IDENTITY, principal
 from courtloc.common.services_table import (
     CONTROLS,
@@ -13,7 +14,6 @@ from courtloc.common.services_table import (
     liveliness_key,
     robot_wildcard_key,
 )
-
 from courtloc.security.acl import access_control, grants_for, identities
 
 ROBOT = "robot7"

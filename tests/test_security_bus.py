@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 import zenoh
 from buskit import PYTHON, Proc, free_port, start_stage
+
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, build_zenoh_config, open_session
 from courtloc.common.security import SecurityConfig
 from courtloc.common.services_table import CONTROLS, TOPICS, liveliness_key, robot_wildcard_key
-
 from courtloc.security.bundle import Bundles, init_bundles
 
 pytestmark = pytest.mark.integration

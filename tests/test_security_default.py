@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 from buskit import PYTHON, Proc, free_port
+
 from courtloc.common.config_loader import ConfigError
 from courtloc.common.exposure import exposed_endpoints, insecure_exposure, is_loopback, warn_while_insecure
 from courtloc.services.deployment import load_deployment

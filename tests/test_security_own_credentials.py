@@ -9,11 +9,11 @@ from pathlib import Path
 
 import pytest
 from buskit import PYTHON, Proc, folder_camera_toml, free_port, write_line_frames
+
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.security import CLIENT_CREDENTIALS, ROUTER_CREDENTIALS, SYSTEMD_CREDENTIALS_ENV, SecurityConfig
 from courtloc.common.services_table import TOPICS
-
 from courtloc.security.bundle import init_bundles
 
 UNITS = Path(__file__).resolve().parents[1] / "deploy" / "systemd"

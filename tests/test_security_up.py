@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 from buskit import PYTHON, Proc, folder_camera_toml, free_port, write_line_frames
+
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.security import SecurityConfig
 from courtloc.common.services_table import TOPICS
-
 from courtloc.security.bundle import init_bundles
 
 pytestmark = pytest.mark.integration

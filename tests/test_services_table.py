@@ -3,6 +3,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+
 from courtloc.common.services_table import SERVICES, TOPICS, check_robot_id, liveliness_key, topic_of_key
 
 REPO = Path(__file__).resolve().parents[1]

@@ -7,9 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.integrate import solve_ivp
+
 from courtloc.shot.ballistics import G, ShotModel, UnreachableShot, fit, rpm_for_speed, solve, vacuum_speed
 from courtloc.shot.rpm import RpmTable
-from scipy.integrate import solve_ivp
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "deploy" / "shooter" / "example_rpm_table.csv"
 

@@ -5,10 +5,10 @@ import json
 from pathlib import Path
 
 import pytest
-from courtloc.common.config_loader import ConfigError
-from courtloc.services.shooter_bridge.config import ShooterConfig, load_shooter_config
 
 from courtloc.cli import main
+from courtloc.common.config_loader import ConfigError
+from courtloc.services.shooter_bridge.config import ShooterConfig, load_shooter_config
 
 SHOOTER_DEPLOY = Path(__file__).resolve().parents[1] / "deploy" / "shooter"
 EXAMPLE_TABLE = SHOOTER_DEPLOY / "example_rpm_table.csv"

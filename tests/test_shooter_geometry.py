@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 
 import pytest
+
 from courtloc.shot.geometry import Pose2D, ShooterMount, UnreachableAim, aim, ring_for, shooter_position
 from courtloc.world.angles import wrap_angle
 

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 import pytest
+
 from courtloc.services.shooter_bridge.config import AreaConfig, LinkConfig, PolicyConfig
 from courtloc.services.shooter_bridge.link import McuLink, backoff_delays
 from courtloc.services.shooter_bridge.policy import ShotPolicy, build_area

@@ -5,6 +5,7 @@ import math
 import os
 
 import pytest
+
 from courtloc.services.shooter_bridge.config import LinkConfig
 from courtloc.services.shooter_bridge.link import McuLink
 from courtloc.services.shooter_bridge.odometry import ClockMap, OdometryConfig, OdometryIntake

@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 
 import pytest
+
 from courtloc.services.shooter_bridge.config import AreaConfig, PolicyConfig, ShooterConfig
 from courtloc.services.shooter_bridge.policy import ShotPolicy, build_area, build_policy, polygon_area
 from courtloc.services.shooter_bridge.protocol import Command, Flag, HoldReason

@@ -6,6 +6,7 @@ import struct
 from pathlib import Path
 
 import pytest
+
 from courtloc.services.shooter_bridge.protocol import (
     FRAME_V1_SIZE,
     ODOMETRY_FRAME_SIZE,

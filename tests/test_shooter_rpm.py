@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from courtloc.shot.rpm import RpmTable, TableError, TableWatcher
 
 REPO = Path(__file__).resolve().parents[1]

@@ -7,11 +7,12 @@ from typing import Iterator
 
 import pytest
 from buskit import BusClient, free_port, start_router, start_stage, write_config
+from test_shooter_link import FakeMcu  # the same pty MCU as the link tests (tests/ is on sys.path)
+
 from courtloc.common import codec
 from courtloc.common.messages import Header, Pose
 from courtloc.common.services_table import TOPICS
 from courtloc.services.shooter_bridge.protocol import Command, HoldReason
-from test_shooter_link import FakeMcu  # the same pty MCU as the link tests (tests/ is on sys.path)
 
 pytestmark = [pytest.mark.integration, pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs ptys")]
 

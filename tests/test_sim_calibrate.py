@@ -5,6 +5,8 @@ import json
 
 import numpy as np
 import pytest
+
+from courtloc.cli import main
 from courtloc.lab.calibrate import (
     SEED_LAG_S,
     CalibrationOptions,
@@ -18,8 +20,6 @@ from courtloc.sim.render import RenderOptions
 from courtloc.sim.synth import SynthConfig, synth
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
-
-from courtloc.cli import main
 
 
 @pytest.fixture(scope="module")

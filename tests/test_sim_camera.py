@@ -5,8 +5,9 @@ import math
 
 import numpy as np
 import pytest
-from courtloc.world.camera import CameraModel, court_to_robot, load_camera, robot_to_court
 from pydantic import ValidationError
+
+from courtloc.world.camera import CameraModel, court_to_robot, load_camera, robot_to_court
 
 
 def _camera(**mount) -> CameraModel:

@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+
 from courtloc.world.court import available_courts, load_court
 
 

@@ -3,11 +3,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
+from scipy.spatial import cKDTree
+
 from courtloc.sim.render import OccluderOptions, Renderer, RenderOptions
 from courtloc.world.camera import CameraModel, load_camera
 from courtloc.world.court import load_court
-from pydantic import ValidationError
-from scipy.spatial import cKDTree
 
 
 @pytest.fixture(scope="module")

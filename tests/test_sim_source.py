@@ -5,11 +5,12 @@ import math
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
+
 from courtloc.sim.source import SimSource, SimSourceConfig
 from courtloc.sim.trajectory import CsvTrajectory, RandomWalkTrajectory, WaypointTrajectory
 from courtloc.world.angles import wrap_angle
 from courtloc.world.court import load_court
-from pydantic import ValidationError
 
 
 def _speeds(traj, dt: float, seconds: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -7,11 +7,11 @@ import math
 import cv2
 import numpy as np
 import pytest
+
+from courtloc.cli import main
 from courtloc.sim.labels import read_pose_csv
 from courtloc.sim.synth import SynthConfig, image_name, synth
 from courtloc.world.court import load_court
-
-from courtloc.cli import main
 
 
 def _rows(path):

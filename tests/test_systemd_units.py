@@ -12,9 +12,9 @@ import sys
 from pathlib import Path
 
 import pytest
-from courtloc.common.services_table import SERVICES
 
 from courtloc.cli import build_parser
+from courtloc.common.services_table import SERVICES
 
 UNITS = Path(__file__).resolve().parents[1] / "deploy" / "systemd"
 SERVICE_FILES = sorted(UNITS.glob("*.service"))

@@ -8,13 +8,14 @@ from typing import Iterator
 
 import pytest
 from buskit import BusClient, free_port, start_router, start_stage, write_config
+from test_shooter_link import FakeMcu  # the pty MCU of the link tests (tests/ is on sys.path)
+from test_shooter_policy import _policy
+
 from courtloc.common import codec
 from courtloc.common.messages import CLOCK_OFFSET_TOLERANCE_NS, HOST, Header, Pose
 from courtloc.common.services_table import TOPICS
 from courtloc.services.shooter_bridge.protocol import Command, HoldReason
 from courtloc.shot.geometry import Pose2D
-from test_shooter_link import FakeMcu  # the pty MCU of the link tests (tests/ is on sys.path)
-from test_shooter_policy import _policy
 
 RING = (6.0, 0.0, 2.43)
 

@@ -11,9 +11,8 @@ from extras import TORCH_MISSING
 
 torch = pytest.importorskip("torch", reason=TORCH_MISSING)
 
-from courtloc.training.toy_data import write_toy_dataset  # noqa: E402
-
 from courtloc.cli import main  # noqa: E402
+from courtloc.training.toy_data import write_toy_dataset  # noqa: E402
 
 
 def _run(argv: list[str]) -> int:

@@ -18,11 +18,12 @@ from pathlib import Path
 import numpy as np
 import onnx
 import torch
+from torch import nn
+
 from courtloc.lab.datasets import Dataset
 from courtloc.lab.metrics import compute_metrics
 from courtloc.localizer.manifest import InputSpec, TensorSpec, attach_manifest
 from courtloc.training import paper_onnx
-from torch import nn
 
 log = logging.getLogger(__name__)
 ARCHES = ("mobilenet_v2", "efficientnet_b0")
@@ -97,9 +98,10 @@ def train_baseline(cfg, arch: str) -> dict:  # noqa: ANN001 - trainer.TrainConfi
     and summary metrics are on the strided frames, the full held-out numbers come from `courtloc eval`.
     """
 
+    from tqdm import tqdm  # progress bars: tqdm comes with the train extra
+
     from courtloc.training.export import paper_manifest  # needs torch: the train extra
     from courtloc.training.trainer import HISTORY, SparseFrames, _split, plot_history  # needs torch: the train extra
-    from tqdm import tqdm  # progress bars: tqdm comes with the train extra
 
     build_baseline(arch)  # fails fast, before loading data, when torchvision is absent
     cfg.out.mkdir(parents=True, exist_ok=True)

@@ -5,10 +5,9 @@ import argparse
 import json
 from pathlib import Path
 
-from courtloc.lab.dataset_args import add_dataset_arguments
-
 from courtloc.cli_errors import UsageError
 from courtloc.cliargs import nonnegative_int, positive_float, positive_int
+from courtloc.lab.dataset_args import add_dataset_arguments
 
 
 def register(sub: argparse._SubParsersAction) -> None:

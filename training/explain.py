@@ -15,6 +15,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 import torch
+
 from courtloc.lab.datasets import threshold_dots
 from courtloc.localizer.paper_input import dense_input
 from courtloc.training.paper_model import DensePaperNet

@@ -8,6 +8,7 @@ from typing import Iterable
 import numpy as np
 import onnx
 import torch
+
 from courtloc.localizer.manifest import (
     InputSpec,
     Manifest,

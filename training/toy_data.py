@@ -12,6 +12,7 @@ from typing import Sequence
 
 import cv2
 import numpy as np
+
 from courtloc.localizer.paper_input import hits_to_dot_image
 
 

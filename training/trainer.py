@@ -17,12 +17,13 @@ from typing import Literal, Optional
 
 import numpy as np
 import torch
+from pydantic import BaseModel, ConfigDict, Field
+
 from courtloc.lab.datasets import Dataset, split_by_recording
 from courtloc.lab.metrics import compute_metrics
 from courtloc.localizer.paper_input import CROP_TOP, sparse_input
 from courtloc.training.lazy_adam import LazyAdamRows, RowBatch
 from courtloc.training.paper_model import SparsePaperNet
-from pydantic import BaseModel, ConfigDict, Field
 
 log = logging.getLogger(__name__)
 LAST_CHECKPOINT = "last.pt"

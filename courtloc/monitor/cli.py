@@ -6,10 +6,11 @@ import logging
 
 from courtloc.cli_errors import RUN_EXIT, UsageError
 from courtloc.cliargs import nonnegative_int, positive_float
+from courtloc.common.bus import wait_for_router
 from courtloc.common.exposure import insecure_exposure, warn_while_insecure
 from courtloc.common.signals import stop_on_signals
 from courtloc.monitor.app import Monitor
-from courtloc.recording.busargs import add_client_arguments, client_deployment, wait_for_router
+from courtloc.recording.busargs import add_client_arguments, client_deployment
 
 
 def register(sub: argparse._SubParsersAction) -> None:

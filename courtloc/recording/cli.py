@@ -10,9 +10,10 @@ from mcap.exceptions import McapError
 
 from courtloc.cli_errors import UsageError
 from courtloc.cliargs import nonnegative_float, positive_float, positive_int
+from courtloc.common.bus import wait_for_router
 from courtloc.common.services_table import TOPICS
 from courtloc.common.signals import stop_on_signals
-from courtloc.recording.busargs import add_client_arguments, client_deployment, wait_for_router
+from courtloc.recording.busargs import add_client_arguments, client_deployment
 from courtloc.recording.capture import CSV_NAME, Capture, CaptureOptions
 from courtloc.recording.mcapfile import Limits, McapSeries, dumps_summary, series_files
 from courtloc.recording.recorder import Recorder, recording_metadata, resolve_topics

@@ -5,6 +5,7 @@ import time
 
 import cv2
 import numpy as np
+
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.messages import Frame, GroundTruth, Header
 from courtloc.common.runtime import Service

@@ -13,6 +13,7 @@ from typing import Protocol
 
 import cv2
 import numpy as np
+
 from courtloc.services.camera.config import (
     CameraConfig,
     DeviceSourceConfig,

@@ -5,8 +5,9 @@ import os
 from pathlib import Path
 from typing import Literal
 
-from courtloc.localizer.odometry_fusion import FusionConfig
 from pydantic import BaseModel, ConfigDict, Field
+
+from courtloc.localizer.odometry_fusion import FusionConfig
 
 
 def default_store_path() -> Path:

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import onnxruntime
+from onnx.helper import tensor_dtype_to_np_dtype
+
 from courtloc.common.signing import ModelSignatureError, signature_path, verify_model
 from courtloc.localizer.manifest import Manifest, ManifestError
 from courtloc.localizer.model_file import ModelFile
@@ -22,7 +24,6 @@ from courtloc.services.infer.config import InferConfig
 from courtloc.services.infer.golden import GoldenSets
 from courtloc.services.infer.store import ModelRef, StoredModel
 from courtloc.world.court import Court
-from onnx.helper import tensor_dtype_to_np_dtype
 
 log = logging.getLogger(__name__)
 

@@ -5,6 +5,8 @@ import math
 import time
 
 import numpy as np
+from pydantic import BaseModel
+
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.control import ModelReply
 from courtloc.common.inbox import Delivery
@@ -23,7 +25,6 @@ from courtloc.services.infer.model_control import ModelControl
 from courtloc.services.infer.shadow import ShadowRunner
 from courtloc.services.infer.store import ModelRef, ModelStore, StoredModel
 from courtloc.services.infer.uploads import Uploads
-from pydantic import BaseModel
 
 DEFAULT_MODEL_NAME = "default"
 

@@ -9,6 +9,7 @@ from collections import deque
 from typing import Callable
 
 import numpy as np
+
 from courtloc.common.control import ShadowStats
 from courtloc.common.inbox import LatestInbox
 from courtloc.common.messages import Edges, Pose

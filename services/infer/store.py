@@ -18,8 +18,9 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-from courtloc.localizer.manifest import MODEL_FILE
 from pydantic import BaseModel, ConfigDict, Field
+
+from courtloc.localizer.manifest import MODEL_FILE
 
 log = logging.getLogger(__name__)
 

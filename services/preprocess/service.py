@@ -4,6 +4,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.inbox import Delivery
 from courtloc.common.messages import Edges, Frame

@@ -4,12 +4,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal, Optional, Union
 
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
 from courtloc.common.config_loader import load_model, resolve_relative_paths
 from courtloc.services.shooter_bridge.odometry import OdometryConfig
 from courtloc.shot.ballistics import ShotModel
 from courtloc.shot.geometry import ShooterMount, ring_for
 from courtloc.shot.rpm import PriorSource, RpmSource, TableWatcher
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 
 class _Strict(BaseModel):

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import Callable, Iterator, Optional
 
 import serial
+
 from courtloc.services.shooter_bridge.config import LinkConfig
 from courtloc.services.shooter_bridge.protocol import (
     Command,
@@ -164,7 +165,9 @@ class McuLink:
                 self._write(*pending)
             elif time.monotonic() - self._last_write >= self.config.heartbeat_s:
                 self._write(Command.HEARTBEAT, 0, 0, 0)
-            self._read_status(readable, woke_ns)
+            # The wake-up time is the bytes' arrival only when they woke us: after a poke or a timeout any
+            # bytes found came later, and are stamped when read.
+            self._read_status(readable, woke_ns if readable else 0)
         if self._port is not None:
             self._write(Command.HOLD, 0, 0, int(HoldReason.STOPPED))
             self._close()

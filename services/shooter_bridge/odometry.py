@@ -16,9 +16,10 @@ from collections import Counter, deque
 from dataclasses import dataclass
 from typing import Optional
 
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
 from courtloc.common.messages import Header, Odometry, StageStamp
 from courtloc.services.shooter_bridge.protocol import OdometrySample, OdomFlag
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 WRAP_US = 1 << 32
 
