@@ -1,0 +1,95 @@
+"""Writes test_vectors.json from the Python implementation (services/shooter_bridge/protocol.py).
+
+    python deploy/firmware/make_vectors.py [OUT.json]
+
+`encode`: a frame's fields and its bytes. `decode`: a byte stream (noise, cut frames, bad CRCs, a frame
+inside a corrupt one) and what a receiver must get out of it: the frames in order and the decoder's
+counters. tests/test_firmware.py checks that this file is what the Python code produces today and that
+the C code in this folder agrees with every entry.
+"""
+from __future__ import annotations
+
+import json
+import random
+import sys
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from courtloc.services.shooter_bridge.protocol import (
+    Command, HoldReason, McuFrame, StreamDecoder, crc16_ccitt_false, encode)
+
+HERE = Path(__file__).resolve().parent
+DEFAULT_OUT = HERE / "test_vectors.json"
+
+
+def frame_dict(frame: McuFrame) -> dict[str, int]:
+    return {"seq": frame.seq, "command": int(frame.command), "rpm": frame.rpm, "flags": frame.flags,
+            "reason": frame.reason}
+
+
+def _encode_cases() -> list[McuFrame]:
+    return [
+        McuFrame(seq=0x1234, command=Command.SET_RPM, rpm=2500, flags=0x03),
+        McuFrame(seq=0x0001, command=Command.HOLD, reason=int(HoldReason.STALE)),
+        McuFrame(seq=0x0002, command=Command.HEARTBEAT),
+        McuFrame(seq=0x0010, command=Command.STATUS, rpm=2480, flags=0x01),
+        McuFrame(seq=0xFFFF, command=Command.SET_RPM, rpm=0xFFFF, flags=0xFF, reason=0xFF),
+        McuFrame(seq=0, command=Command.HOLD, reason=int(HoldReason.STOPPED)),
+        McuFrame(seq=0xA55A, command=Command.SET_RPM, rpm=0x5AA5, flags=0x0F),  # sync bytes inside the body
+    ]
+
+
+def _decode_streams() -> list[tuple[str, bytes]]:
+    ok = [encode(f) for f in _encode_cases()]
+    bad_crc = bytearray(ok[0])
+    bad_crc[7] ^= 0x10
+    long_body = bytearray(b"\xa5\x5a\x0a" + ok[1][3:10] + b"\x01\x02\x03")  # LEN 10: extra body bytes ignored
+    long_body += crc16_ccitt_false(bytes(long_body[2:])).to_bytes(2, "little")
+    unknown = bytearray(b"\xa5\x5a\x07\x05\x00\x7f\x00\x00\x00\x00")
+    unknown += crc16_ccitt_false(bytes(unknown[2:])).to_bytes(2, "little")
+    # a corrupt frame claiming LEN 32 whose body holds a real frame: the receiver must find the inner one
+    inner = bytearray(b"\xa5\x5a\x20") + ok[2] + bytes(range(20)) + b"\x00\x00"
+    rng = random.Random(17)
+    noisy = bytearray()
+    for frame in ok:
+        noisy += bytes(rng.randrange(256) for _ in range(rng.randrange(0, 12)))
+        noisy += b"\xa5\x5a\xff" + b"\xa5\x5a\x07\x01" + frame
+    return [
+        ("all encode cases back to back", b"".join(ok)),
+        ("starts mid-frame", ok[0][5:] + ok[1]),
+        ("bit error in RPM, then a good frame", bytes(bad_crc) + ok[3]),
+        ("LEN 10: extra body bytes ignored", bytes(long_body)),
+        ("unknown command skipped", bytes(unknown) + ok[2]),
+        ("impossible LENs", b"\xa5\x5a\x00\xa5\x5a\x06\xa5\x5a\x21" + ok[4]),
+        ("real frame inside a corrupt one", bytes(inner)),
+        ("noise, bad lengths and truncated frames between frames", bytes(noisy)),
+        ("trailing SYNC0 kept for the next chunk", ok[5] + b"\x00\xa5"),
+    ]
+
+
+def decode_expectation(stream: bytes) -> dict[str, Any]:
+    decoder = StreamDecoder()
+    frames = decoder.feed(stream)
+    return {"frames": [frame_dict(f) for f in frames], "stats": asdict(decoder.stats), "buffered": decoder.buffered}
+
+
+def build() -> dict[str, Any]:
+    return {
+        "protocol": "courtloc shooter bridge serial frame, version 1 (docs/shooter.md)",
+        "generated_by": "deploy/firmware/make_vectors.py",
+        "crc": [{"ascii": "123456789", "crc": 0x29B1}, {"ascii": "", "crc": 0xFFFF}],
+        "encode": [{"frame": frame_dict(f), "hex": encode(f).hex()} for f in _encode_cases()],
+        "decode": [{"name": name, "hex": stream.hex(), **decode_expectation(stream)}
+                   for name, stream in _decode_streams()],
+    }
+
+
+def render() -> str:
+    return json.dumps(build(), indent=1) + "\n"
+
+
+if __name__ == "__main__":
+    out = Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT_OUT
+    out.write_text(render())
+    print(f"wrote {out}")
