@@ -16,7 +16,8 @@ from courtloc.common import codec
 from courtloc.common.messages import Frame, Header, Health, Pose
 from courtloc.common.services_table import TOPICS
 from courtloc.recording.jsonview import json_view, schema_data
-from courtloc.recording.mcapfile import VIEW_JSON, Limits, McapSeries, RecordItem, read_series, series_files
+from courtloc.recording.mcapfile import (
+    VIEW_JSON, Limits, McapSeries, RecordItem, exact_path, read_series, series_files)
 from courtloc.recording.recorder import resolve_topics
 
 ROBOT = "robot1"
@@ -162,7 +163,8 @@ def test_a_recording_cut_short_is_readable_up_to_the_last_flush(tmp_path: Path) 
     series.tick(now=time.monotonic() + 2.0)  # a second passed: the open chunk is closed and written
     series.write(_item("infer/pose", _pose(5), 2_000))  # still in the open chunk when the "power" goes
     cut = tmp_path / "copy.mcap"
-    cut.write_bytes(out.read_bytes())  # the file as the disk holds it now: no summary, no footer
+    cut.write_bytes(out.read_bytes())  # the files as the disk holds them now: no summary, no footer
+    exact_path(cut).write_bytes(exact_path(out).read_bytes())
     series.close()
     recovered = [codec.decode(r.data, Pose).x for r in read_series([cut])]
     assert recovered == [0.0, 1.0, 2.0, 3.0, 4.0]

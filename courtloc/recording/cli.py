@@ -21,6 +21,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     record.add_argument("--max-seconds", type=float, default=None, help="start a new file after this long")
     record.add_argument("--duration", type=float, default=None, help="stop after S seconds (default: Ctrl-C)")
     record.add_argument("--max-messages", type=int, default=None, metavar="N", help="stop after N messages")
+    record.add_argument("--court", default=None, help="court drawn in Foxglove's 3D panel (default: the config's)")
+    record.add_argument("--camera", default=None,
+                        help="camera model placing the camera on the robot in TF (default: the config's)")
     add_client_arguments(record)
     record.set_defaults(func=run_record)
 
@@ -78,6 +81,7 @@ def _deployment(args: argparse.Namespace):  # noqa: ANN202
 
 
 def run_record(args: argparse.Namespace) -> int:
+    from courtloc.recording.foxview import FoxgloveViews
     from courtloc.recording.mcapfile import Limits, McapSeries
     from courtloc.recording.recorder import Recorder, recording_metadata, resolve_topics
 
@@ -95,8 +99,13 @@ def run_record(args: argparse.Namespace) -> int:
             print(f"--{name.replace('_', '-')} must be > 0, got {value}", file=sys.stderr)
             return 2
     limits = Limits(max_bytes=int(args.max_mb * 1e6) if args.max_mb else None, max_seconds=args.max_seconds)
+    try:
+        foxglove = FoxgloveViews.load(args.court or config.camera.sim.court, args.camera or config.camera.sim.camera)
+    except (ValueError, OSError) as exc:
+        print(f"--court/--camera: {exc}", file=sys.stderr)
+        return 2
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    series = McapSeries(args.out, limits, recording_metadata(config.robot_id, paths))
+    series = McapSeries(args.out, limits, recording_metadata(config.robot_id, paths), foxglove)
     stop = _stop_on_signals()
     recorder = Recorder(config.robot_id, config.zenoh, paths, series)
     ready = lambda: print(f"recording {len(paths)} topic(s) of {config.robot_id} to {args.out}", flush=True)  # noqa: E731
