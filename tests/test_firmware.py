@@ -19,15 +19,29 @@ from typing import Any
 import pytest
 
 from courtloc.services.shooter_bridge.protocol import (
-    Command, McuFrame, StreamDecoder, crc16_ccitt_false, decode, encode)
+    Command, McuFrame, OdometrySample, OdomFlag, StreamDecoder, crc16_ccitt_false, decode, encode, encode_odometry,
+    parse_odometry)
 
 FIRMWARE = Path(__file__).resolve().parents[1] / "deploy" / "firmware"
 STATS = ("frames", "crc_errors", "bad_length", "unknown_command", "discarded_bytes")
 
 
+MAX_EXTRA = 25
+
+
 class CFrame(ctypes.Structure):
     _fields_ = [("seq", ctypes.c_uint16), ("command", ctypes.c_uint8), ("rpm", ctypes.c_uint16),
-                ("flags", ctypes.c_uint8), ("reason", ctypes.c_uint8)]
+                ("flags", ctypes.c_uint8), ("reason", ctypes.c_uint8), ("extra_len", ctypes.c_uint8),
+                ("extra", ctypes.c_uint8 * MAX_EXTRA)]
+
+
+ODOMETRY_FIELDS = ("seq", "t_us", "vx_mm_s", "vy_mm_s", "wz_mrad_s", "gz_urad_s", "flags")
+
+
+class COdometry(ctypes.Structure):
+    _fields_ = [("seq", ctypes.c_uint16), ("t_us", ctypes.c_uint32), ("vx_mm_s", ctypes.c_int16),
+                ("vy_mm_s", ctypes.c_int16), ("wz_mrad_s", ctypes.c_int16), ("gz_urad_s", ctypes.c_int32),
+                ("flags", ctypes.c_uint8)]
 
 
 class CStats(ctypes.Structure):
@@ -62,13 +76,22 @@ def lib(tmp_path_factory: pytest.TempPathFactory) -> ctypes.CDLL:
                                          ctypes.c_void_p]
     library.clm_decoder_buffered.restype = ctypes.c_size_t
     library.clm_decoder_buffered.argtypes = [ctypes.POINTER(CDecoder)]
+    library.clm_encode_odometry.restype = ctypes.c_size_t
+    library.clm_encode_odometry.argtypes = [ctypes.POINTER(COdometry), ctypes.c_char_p]
+    library.clm_parse_odometry.restype = ctypes.c_int
+    library.clm_parse_odometry.argtypes = [ctypes.POINTER(CFrame), ctypes.POINTER(COdometry)]
     return library
 
 
+def c_frame(frame: McuFrame) -> CFrame:
+    extra = bytes(frame.extra)
+    return CFrame(frame.seq, int(frame.command), frame.rpm, frame.flags, frame.reason, len(extra),
+                  (ctypes.c_uint8 * MAX_EXTRA)(*extra))
+
+
 def c_encode(lib: ctypes.CDLL, frame: McuFrame) -> bytes:
-    out = ctypes.create_string_buffer(12)
-    size = lib.clm_encode(ctypes.byref(CFrame(frame.seq, int(frame.command), frame.rpm, frame.flags,
-                                              frame.reason)), out)
+    out = ctypes.create_string_buffer(37)
+    size = lib.clm_encode(ctypes.byref(c_frame(frame)), out)
     return out.raw[:size]
 
 
@@ -85,7 +108,7 @@ class CStream:
     def _on_frame(self, frame: Any, _ctx: Any) -> None:
         f = frame.contents
         self.frames.append({"seq": f.seq, "command": f.command, "rpm": f.rpm, "flags": f.flags,
-                            "reason": f.reason})
+                            "reason": f.reason, "extra": bytes(f.extra[:f.extra_len]).hex()})
 
     def feed(self, data: bytes) -> int:
         return self.lib.clm_decoder_feed(ctypes.byref(self.decoder), data, len(data), self._cb, None)
@@ -98,9 +121,13 @@ class CStream:
         return self.lib.clm_decoder_buffered(ctypes.byref(self.decoder))
 
 
-def as_dict(frame: McuFrame) -> dict[str, int]:
+def as_dict(frame: McuFrame) -> dict[str, int | str]:
     return {"seq": frame.seq, "command": int(frame.command), "rpm": frame.rpm, "flags": frame.flags,
-            "reason": frame.reason}
+            "reason": frame.reason, "extra": bytes(frame.extra).hex()}
+
+
+def frame_of(fields: dict[str, Any]) -> McuFrame:
+    return McuFrame(**{**fields, "command": Command(fields["command"]), "extra": bytes.fromhex(fields["extra"])})
 
 
 def vectors() -> dict[str, Any]:
@@ -113,9 +140,9 @@ def test_vectors_are_what_the_python_implementation_produces() -> None:
         "protocol.py changed: regenerate with python deploy/firmware/make_vectors.py"
     data = vectors()
     for case in data["encode"]:
-        frame = McuFrame(**{**case["frame"], "command": Command(case["frame"]["command"])})
-        assert decode(bytes.fromhex(case["hex"])) == frame
+        assert decode(bytes.fromhex(case["hex"])) == frame_of(case["frame"])
     assert len(data["decode"]) >= 8 and any(c["stats"]["crc_errors"] for c in data["decode"])
+    assert any(f["command"] == Command.ODOMETRY for c in data["decode"] for f in c["frames"])
 
 
 def test_crc_matches(lib: ctypes.CDLL) -> None:
@@ -132,8 +159,35 @@ def test_crc_matches(lib: ctypes.CDLL) -> None:
 
 def test_encode_vectors(lib: ctypes.CDLL) -> None:
     for case in vectors()["encode"]:
-        frame = McuFrame(**{**case["frame"], "command": Command(case["frame"]["command"])})
+        frame = frame_of(case["frame"])
         assert c_encode(lib, frame).hex() == case["hex"] == encode(frame).hex()
+
+
+def odometry_sample(fixed: dict[str, int]) -> OdometrySample:
+    return OdometrySample(seq=fixed["seq"], mcu_time_us=fixed["t_us"], vx_m_s=fixed["vx_mm_s"] / 1e3,
+                          vy_m_s=fixed["vy_mm_s"] / 1e3, wz_wheels_rad_s=fixed["wz_mrad_s"] / 1e3,
+                          wz_gyro_rad_s=fixed["gz_urad_s"] / 1e6, flags=OdomFlag(fixed["flags"]))
+
+
+def test_odometry_vectors_both_ways(lib: ctypes.CDLL) -> None:
+    cases = vectors()["odometry"]
+    assert len(cases) >= 3
+    for case in cases:
+        fixed = case["fixed"]
+        out = ctypes.create_string_buffer(26)
+        size = lib.clm_encode_odometry(ctypes.byref(COdometry(*(fixed[k] for k in ODOMETRY_FIELDS))), out)
+        assert out.raw[:size].hex() == case["hex"] == encode_odometry(odometry_sample(fixed)).hex()
+        # what the MCU sends, the bridge parses to the same SI values
+        assert parse_odometry(decode(out.raw[:size])) == odometry_sample(fixed)
+        # and the C parser reads the bridge-side encoding back to the same fixed-point fields
+        stream = CStream(lib)
+        stream.feed(bytes.fromhex(case["hex"]))
+        frame = frame_of(stream.frames[0])
+        parsed = COdometry()
+        assert lib.clm_parse_odometry(ctypes.byref(c_frame(frame)), ctypes.byref(parsed)) == 1
+        assert {k: getattr(parsed, k) for k in ODOMETRY_FIELDS} == fixed
+    status = c_frame(McuFrame(seq=1, command=Command.STATUS))
+    assert lib.clm_parse_odometry(ctypes.byref(status), ctypes.byref(COdometry())) == 0
 
 
 @pytest.mark.parametrize("chunk", [1, 5, 1000])
@@ -147,8 +201,10 @@ def test_decode_vectors(lib: ctypes.CDLL, chunk: int) -> None:
 
 
 def random_frame(rng: random.Random) -> McuFrame:
-    return McuFrame(seq=rng.randrange(1 << 16), command=rng.choice(list(Command)), rpm=rng.randrange(1 << 16),
-                    flags=rng.randrange(256), reason=rng.randrange(256))
+    command = rng.choice(list(Command))
+    extra = bytes(rng.randrange(256) for _ in range(14 if command == Command.ODOMETRY else rng.choice([0, 0, 3])))
+    return McuFrame(seq=rng.randrange(1 << 16), command=command, rpm=rng.randrange(1 << 16),
+                    flags=rng.randrange(256), reason=rng.randrange(256), extra=extra)
 
 
 def test_both_directions_on_random_frames(lib: ctypes.CDLL) -> None:

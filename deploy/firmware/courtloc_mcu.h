@@ -12,7 +12,12 @@
  *   6      2    RPM   uint16 LE
  *   8      1    FLAGS
  *   9      1    REASON
+ *   10     LEN-7 extra body bytes (the ODOMETRY payload below; other commands: none)
  *   3+LEN  2    CRC   CRC-16/CCITT-FALSE over bytes 2 .. 2+LEN, little-endian
+ *
+ * ODOMETRY (0x82, MCU -> bridge): LEN 21, RPM 0, FLAGS = CLM_ODOM_*, REASON 0, then
+ *   10 4 T_US uint32 MCU microseconds at the end of the window (wraps)   14 2 VX int16 mm/s forward
+ *   16 2 VY int16 mm/s left   18 2 WZ int16 mrad/s from the wheels (CCW+)   20 4 GZ int32 urad/s gyro (CCW+)
  */
 #ifndef COURTLOC_MCU_H
 #define COURTLOC_MCU_H
@@ -30,12 +35,16 @@ extern "C" {
 #define CLM_MAX_BODY 32u
 #define CLM_FRAME_V1_SIZE (3u + CLM_BODY_V1 + 2u)
 #define CLM_MAX_FRAME (3u + CLM_MAX_BODY + 2u)
+#define CLM_MAX_EXTRA (CLM_MAX_BODY - CLM_BODY_V1)
+#define CLM_ODOMETRY_PAYLOAD 14u
+#define CLM_ODOMETRY_FRAME_SIZE (CLM_FRAME_V1_SIZE + CLM_ODOMETRY_PAYLOAD)
 
 /* Commands (CMD). */
 #define CLM_CMD_SET_RPM 0x01u   /* bridge -> MCU: spin the wheels to RPM */
 #define CLM_CMD_HOLD 0x02u      /* bridge -> MCU: do not shoot; REASON says why */
 #define CLM_CMD_HEARTBEAT 0x03u /* bridge -> MCU: link alive; never extends a SET_RPM */
 #define CLM_CMD_STATUS 0x81u    /* MCU -> bridge: RPM measured, SEQ last received, FLAGS status */
+#define CLM_CMD_ODOMETRY 0x82u  /* MCU -> bridge: wheel odometry + gyro yaw rate in the extra bytes */
 
 /* FLAGS, bridge -> MCU. */
 #define CLM_FLAG_CLAMPED 0x01u
@@ -48,6 +57,13 @@ extern "C" {
 #define CLM_STATUS_HOLDING 0x02u
 #define CLM_STATUS_WATCHDOG 0x04u
 #define CLM_STATUS_FAULT 0x80u
+
+/* FLAGS, MCU -> bridge (ODOMETRY). */
+#define CLM_ODOM_WHEELS_VALID 0x01u
+#define CLM_ODOM_GYRO_VALID 0x02u
+#define CLM_ODOM_GYRO_SATURATED 0x04u
+#define CLM_ODOM_WHEEL_SLIP 0x08u
+#define CLM_ODOM_FAULT 0x80u
 
 /* REASON codes of HOLD. */
 #define CLM_REASON_NONE 0u
@@ -66,7 +82,20 @@ typedef struct {
     uint16_t rpm;
     uint8_t flags;
     uint8_t reason;
+    uint8_t extra_len;                 /* body bytes after REASON (0 for the version-1 commands) */
+    uint8_t extra[CLM_MAX_EXTRA];
 } clm_frame_t;
+
+/* One ODOMETRY window in the MCU's native fixed-point units. */
+typedef struct {
+    uint16_t seq;    /* counts ODOMETRY frames on their own */
+    uint32_t t_us;   /* MCU clock at the end of the window */
+    int16_t vx_mm_s;
+    int16_t vy_mm_s;
+    int16_t wz_mrad_s;
+    int32_t gz_urad_s;
+    uint8_t flags;   /* CLM_ODOM_* */
+} clm_odometry_t;
 
 typedef struct {
     uint32_t frames;          /* valid frames with a known command, handed to the callback */
@@ -89,8 +118,15 @@ typedef void (*clm_frame_cb)(const clm_frame_t *frame, void *ctx);
  * Incremental: clm_crc16(b, nb, clm_crc16(a, na, 0xFFFF)) == CRC of a then b. Check: "123456789" -> 0x29B1. */
 uint16_t clm_crc16(const uint8_t *data, size_t n, uint16_t crc);
 
-/* Writes the 12-byte version-1 frame to out; returns CLM_FRAME_V1_SIZE. */
-size_t clm_encode(const clm_frame_t *frame, uint8_t out[CLM_FRAME_V1_SIZE]);
+/* Writes the frame (12 bytes + extra_len) to out, which must have room for them; returns its size,
+ * or 0 when extra_len exceeds CLM_MAX_EXTRA. */
+size_t clm_encode(const clm_frame_t *frame, uint8_t *out);
+
+/* Writes the 26-byte ODOMETRY frame; returns CLM_ODOMETRY_FRAME_SIZE. */
+size_t clm_encode_odometry(const clm_odometry_t *odometry, uint8_t out[CLM_ODOMETRY_FRAME_SIZE]);
+
+/* The odometry carried by a decoded ODOMETRY frame: 1 on success, 0 for another command or a short payload. */
+int clm_parse_odometry(const clm_frame_t *frame, clm_odometry_t *odometry);
 
 void clm_decoder_init(clm_decoder_t *decoder);
 

@@ -17,15 +17,31 @@ from pathlib import Path
 from typing import Any
 
 from courtloc.services.shooter_bridge.protocol import (
-    Command, HoldReason, McuFrame, StreamDecoder, crc16_ccitt_false, encode)
+    Command, HoldReason, McuFrame, OdometrySample, OdomFlag, StreamDecoder, crc16_ccitt_false, encode,
+    encode_odometry)
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "test_vectors.json"
 
 
-def frame_dict(frame: McuFrame) -> dict[str, int]:
+def frame_dict(frame: McuFrame) -> dict[str, int | str]:
     return {"seq": frame.seq, "command": int(frame.command), "rpm": frame.rpm, "flags": frame.flags,
-            "reason": frame.reason}
+            "reason": frame.reason, "extra": bytes(frame.extra).hex()}
+
+
+# ODOMETRY in the MCU's fixed-point units (what the C struct holds): seq, t_us, vx mm/s, vy mm/s,
+# wz mrad/s, gz urad/s, flags
+ODOMETRY_CASES: list[tuple[int, int, int, int, int, int, int]] = [
+    (1, 1_000_000, 1234, -250, 500, 512_000, int(OdomFlag.WHEELS_VALID | OdomFlag.GYRO_VALID)),
+    (0xFFFF, 0xFFFFFFFF, -32768, 32767, -32768, -2_147_483_648, int(OdomFlag.FAULT)),
+    (7, 0, 0, 0, 0, 2_147_483_647, int(OdomFlag.GYRO_VALID | OdomFlag.GYRO_SATURATED | OdomFlag.WHEEL_SLIP)),
+]
+
+
+def odometry_sample(case: tuple[int, int, int, int, int, int, int]) -> OdometrySample:
+    seq, t_us, vx, vy, wz, gz, flags = case
+    return OdometrySample(seq=seq, mcu_time_us=t_us, vx_m_s=vx / 1e3, vy_m_s=vy / 1e3, wz_wheels_rad_s=wz / 1e3,
+                          wz_gyro_rad_s=gz / 1e6, flags=OdomFlag(flags))
 
 
 def _encode_cases() -> list[McuFrame]:
@@ -42,6 +58,9 @@ def _encode_cases() -> list[McuFrame]:
 
 def _decode_streams() -> list[tuple[str, bytes]]:
     ok = [encode(f) for f in _encode_cases()]
+    odometry = [encode_odometry(odometry_sample(c)) for c in ODOMETRY_CASES]
+    bad_odometry = bytearray(odometry[0])
+    bad_odometry[15] ^= 0x01  # inside VX
     bad_crc = bytearray(ok[0])
     bad_crc[7] ^= 0x10
     long_body = bytearray(b"\xa5\x5a\x0a" + ok[1][3:10] + b"\x01\x02\x03")  # LEN 10: extra body bytes ignored
@@ -65,6 +84,9 @@ def _decode_streams() -> list[tuple[str, bytes]]:
         ("real frame inside a corrupt one", bytes(inner)),
         ("noise, bad lengths and truncated frames between frames", bytes(noisy)),
         ("trailing SYNC0 kept for the next chunk", ok[5] + b"\x00\xa5"),
+        ("ODOMETRY and STATUS interleaved", odometry[0] + ok[3] + odometry[1] + odometry[2]),
+        ("corrupt ODOMETRY, then a good one", bytes(bad_odometry) + odometry[1]),
+        ("ODOMETRY cut short, then STATUS", odometry[2][:17] + ok[3]),
     ]
 
 
@@ -80,6 +102,8 @@ def build() -> dict[str, Any]:
         "generated_by": "deploy/firmware/make_vectors.py",
         "crc": [{"ascii": "123456789", "crc": 0x29B1}, {"ascii": "", "crc": 0xFFFF}],
         "encode": [{"frame": frame_dict(f), "hex": encode(f).hex()} for f in _encode_cases()],
+        "odometry": [{"fixed": dict(zip(("seq", "t_us", "vx_mm_s", "vy_mm_s", "wz_mrad_s", "gz_urad_s", "flags"), c)),
+                      "hex": encode_odometry(odometry_sample(c)).hex()} for c in ODOMETRY_CASES],
         "decode": [{"name": name, "hex": stream.hex(), **decode_expectation(stream)}
                    for name, stream in _decode_streams()],
     }
