@@ -145,3 +145,40 @@ class Health(Strict):
     e2e_ms_p99: float = 0.0
     last_error: str = ""
     detail: dict[str, float | int | str] = Field(default_factory=dict)
+
+
+class Odometry(Strict):
+    """Body-frame motion over a short window, from any source with its own clock.
+
+    The shooter bridge publishes the MCU's wheel odometry and gyro; a ROS bridge or a tracking camera
+    may publish the same message. Body frame: x forward, y left, yaw counter-clockwise.
+    `header.capture_*_ns` is the END of the window on the publishing host's clocks (the source's
+    clock mapped onto them); `header.valid` is the publisher's verdict that the source's clock and
+    values passed its checks. A half whose `*_valid` is false carries 0, never a number to use.
+
+    `odom_*` is the pose dead-reckoned by the publisher since the start of `epoch` (translation from
+    the wheels, heading from the gyro, or from the wheels without one), so a consumer that reads only
+    the newest message loses nothing: the motion between two times is the difference of two messages
+    of the same epoch. The epoch changes whenever continuity broke (start, a clock jump, a window
+    that could not be integrated); a difference across epochs means nothing.
+    """
+
+    header: Header
+    source: str = Field(min_length=1, description="e.g. 'mcu', 'ros', 't265'")
+    source_seq: int = Field(ge=0)
+    source_time_ns: int = Field(description="the source's own clock at the end of the window, unwrapped")
+    received_mono_ns: int = Field(description="when the publisher read it (its monotonic clock)")
+    window_s: float = Field(ge=0.0, le=1.0, description="the velocities are means over this window")
+    vx_m_s: float = 0.0
+    vy_m_s: float = 0.0
+    wz_wheels_rad_s: float = 0.0
+    wz_gyro_rad_s: float = 0.0
+    wheels_valid: bool = False
+    gyro_valid: bool = False
+    gyro_saturated: bool = Field(False, description="the gyro hit full scale: its rate is a lower bound")
+    wheel_slip: bool = Field(False, description="the source's own traction check tripped")
+    epoch: int = Field(0, ge=0)
+    odom_x_m: float = 0.0
+    odom_y_m: float = 0.0
+    odom_yaw_rad: float = 0.0
+    heading_from_gyro: bool = Field(False, description="odom_yaw_rad integrates the gyro (else the wheels)")

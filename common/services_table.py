@@ -12,7 +12,7 @@ from typing import Literal
 from pydantic import BaseModel
 
 from courtloc.common.control import ModelReply, ModelRequest
-from courtloc.common.messages import Edges, Frame, GroundTruth, Health, Pose, ShotSolution
+from courtloc.common.messages import Edges, Frame, GroundTruth, Health, Odometry, Pose, ShotSolution
 
 ROOT = "courtloc"
 ROBOT_ID_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
@@ -84,6 +84,10 @@ _TOPICS: tuple[Topic, ...] = (
     _topic("infer", "shadow_pose", Pose, 30.0, "data_low", 150.0, "pose of a candidate model in shadow mode"),
     _topic("shooter_bridge", "solution", ShotSolution, 30.0, "real_time", 200.0,
            "distance, bearing and RPM sent to the MCU"),
+    # Odometry: the bridge relays the MCU's wheel odometry and gyro; another source (a ROS bridge, a
+    # tracking camera) may publish the same message on this key instead.
+    _topic("shooter_bridge", "odometry", Odometry, 100.0, "real_time", 100.0,
+           "wheel odometry and gyro yaw rate, body frame, on this host's clock"),
 )
 
 SERVICES: dict[str, ServiceSpec] = {
@@ -93,7 +97,8 @@ SERVICES: dict[str, ServiceSpec] = {
         ServiceSpec("preprocess", ("camera/frame",), ("preprocess/edges", "preprocess/preview"),
                     "HSV white mask + radial scan"),
         ServiceSpec("infer", ("preprocess/edges",), ("infer/pose", "infer/shadow_pose"), "edge hits -> pose"),
-        ServiceSpec("shooter_bridge", ("infer/pose",), ("shooter_bridge/solution",), "pose -> RPM -> MCU"),
+        ServiceSpec("shooter_bridge", ("infer/pose",), ("shooter_bridge/solution", "shooter_bridge/odometry"),
+                    "pose -> RPM -> MCU; MCU odometry -> bus"),
     )
 }
 
