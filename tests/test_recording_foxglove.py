@@ -13,7 +13,8 @@ import pytest
 from mcap.reader import make_reader
 
 from courtloc.common import codec
-from courtloc.common.messages import Edges, Frame, GroundTruth, Header, Health, Pose, ShotSolution, StageStamp
+from courtloc.common.messages import (
+    Edges, Frame, GroundTruth, Header, Health, Odometry, Pose, ShotSolution, StageStamp)
 from courtloc.common.services_table import TOPICS
 from courtloc.foxglove.scene import matrix_quaternion
 from courtloc.recording.foxview import FoxgloveViews
@@ -59,6 +60,9 @@ def every_kind_of_message() -> list[tuple[str, Any]]:
         ("shooter_bridge/solution", ShotSolution(header=_header(2, "shooter_bridge", valid=False),
                                                  distance_m=float("nan"), bearing_rad=None, rpm=0.0, command="HOLD",
                                                  reason="no_pose")),
+        ("shooter_bridge/odometry", Odometry(header=_header(1, "shooter_bridge"), source="mcu", source_seq=1,
+                                             source_time_ns=5, received_mono_ns=6, window_s=0.01, vx_m_s=0.5,
+                                             wz_gyro_rad_s=float("nan"), wheels_valid=True)),
     ]
     for service in ("camera", "preprocess", "infer", "shooter_bridge"):
         messages.append((f"{service}/health", Health(robot_id=ROBOT, service=service, pid=1, wall_ns=T0, detail={"k": float("nan"),

@@ -14,7 +14,7 @@ from typing import Any
 from pydantic import BaseModel
 
 from courtloc.common.messages import Edges, GroundTruth, Pose
-from courtloc.common.services_table import TOPICS
+from courtloc.common.services_table import ROOT, TOPICS
 from courtloc.foxglove import scene
 
 POSE_TOPICS = frozenset({"infer/pose", "infer/shadow_pose", "camera/ground_truth"})
@@ -34,11 +34,11 @@ def _view(topic: str, schema_name: str, body: dict[str, Any]) -> TopicView:
 
 
 def tf_topic(robot_id: str) -> str:
-    return f"courtloc/{robot_id}/tf"
+    return f"{ROOT}/{robot_id}/tf"
 
 
 def scene_topic(robot_id: str) -> str:
-    return f"courtloc/{robot_id}/scene"
+    return f"{ROOT}/{robot_id}/scene"
 
 
 @dataclass(frozen=True)
