@@ -24,6 +24,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "courtloc.security.cli",
     "courtloc.recording.cli",
     "courtloc.monitor.cli",
+    "courtloc.export_cli",
+    "courtloc.ros.cli",
 )
 
 
