@@ -77,7 +77,8 @@ def attachment(sequence: int, source_timestamp_ns: int, gid: bytes) -> bytes:
 
 
 def parse_attachment(data: bytes) -> tuple[int, int, bytes]:
+    from zenoh import ZBytes
     from zenoh.ext import Int64, z_deserialize
 
-    sequence, stamp, gid = z_deserialize(tuple[Int64, Int64, bytes], data)
+    sequence, stamp, gid = z_deserialize(tuple[Int64, Int64, bytes], ZBytes(data))
     return int(sequence), int(stamp), bytes(gid)
