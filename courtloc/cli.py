@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "courtloc.monitor.cli",
     "courtloc.export_cli",
     "courtloc.ros.cli",
+    "courtloc.foxglove.cli",
 )
 
 

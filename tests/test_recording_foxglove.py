@@ -197,3 +197,28 @@ def test_foxglove_channels_are_accepted_by_the_official_sdk_classes(recording: P
             assert type(sdk).__name__ == schema.name.split(".", 1)[1] and sdk.encode()
             checked += 1
     assert checked >= 8
+
+
+def _layout_topics(node: object) -> set[str]:
+    """Every topic a Foxglove layout names: topic keys, image and annotation topics, message paths."""
+    found: set[str] = set()
+    if isinstance(node, dict):
+        for key, value in node.items():
+            if isinstance(key, str) and key.startswith("courtloc/"):
+                found.add(key)
+            found |= _layout_topics(value)
+    elif isinstance(node, list):
+        for value in node:
+            found |= _layout_topics(value)
+    elif isinstance(node, str) and "courtloc/" in node:
+        found.add(node.split('"')[1] if node.startswith('"') else node)
+    return found
+
+
+def test_the_shipped_layout_names_only_topics_a_recording_has(recording: Path) -> None:
+    layout = json.loads((Path(__file__).resolve().parents[1] / "deploy" / "foxglove" / "courtloc.json").read_text())
+    assert set(layout["configById"]) >= {"3D!court", "Image!camera"}
+    named = _layout_topics(layout["configById"])
+    recorded = {c.topic for _, c, _ in _read(recording)}
+    assert named and named <= recorded, named - recorded
+    assert layout["configById"]["3D!court"]["followTf"] == "court"

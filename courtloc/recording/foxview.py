@@ -3,7 +3,8 @@
 foxglove.ImageAnnotations on the camera image. They sit beside the courtloc JSON view in the same file.
 
 Topics (robot id `r`): `courtloc/r/<service>/<topic>/in_frame` for each pose topic, `courtloc/r/tf`,
-`courtloc/r/scene`, `courtloc/r/preprocess/edges/annotations`.
+`courtloc/r/scene`, `courtloc/r/preprocess/edges/annotations`. The live server (courtloc.foxglove.live)
+uses the same names, so one Foxglove layout (deploy/foxglove/) serves a recording and a live robot.
 """
 from __future__ import annotations
 
@@ -31,6 +32,14 @@ class TopicView:
 
 def _view(topic: str, schema_name: str, body: dict[str, Any]) -> TopicView:
     return TopicView(topic, schema_name, json.dumps(body, separators=(",", ":"), allow_nan=False).encode())
+
+
+def pose_topic(path: str, robot_id: str) -> str:
+    return TOPICS[path].key(robot_id) + "/in_frame"
+
+
+def hits_topic(robot_id: str) -> str:
+    return TOPICS["preprocess/edges"].key(robot_id) + "/annotations"
 
 
 def tf_topic(robot_id: str) -> str:
@@ -66,7 +75,7 @@ class FoxgloveViews:
         if path in POSE_TOPICS and isinstance(message, (Pose, GroundTruth)):
             in_frame = scene.pose_in_frame(message)
             if in_frame is not None:
-                views.append(_view(TOPICS[path].key(robot_id) + "/in_frame", "foxglove.PoseInFrame", in_frame))
+                views.append(_view(pose_topic(path, robot_id), "foxglove.PoseInFrame", in_frame))
             if path == "infer/pose" and isinstance(message, Pose):
                 transform = scene.robot_transform(message)
                 if transform is not None:
@@ -74,8 +83,7 @@ class FoxgloveViews:
                     views.append(_view(tf_topic(robot_id), "foxglove.FrameTransform",
                                        scene.camera_transform(self.camera, message.header.capture_wall_ns)))
         elif path == "preprocess/edges" and isinstance(message, Edges):
-            views.append(_view(TOPICS[path].key(robot_id) + "/annotations", "foxglove.ImageAnnotations",
-                               scene.hit_annotations(message)))
+            views.append(_view(hits_topic(robot_id), "foxglove.ImageAnnotations", scene.hit_annotations(message)))
         return views
 
     def preamble(self, robot_id: str, wall_ns: int) -> list[TopicView]:
