@@ -27,6 +27,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "courtloc.export_cli",
     "courtloc.ros.cli",
     "courtloc.foxglove.cli",
+    "courtloc.doctor",
 )
 
 

@@ -21,9 +21,18 @@ class InferConfig(BaseModel):
 
     store: Path = Field(default_factory=default_store_path,
                         description="model repository: <store>/<name>/<version>/model.onnx")
+    # The bundled localizer's graph is a small int16 table lookup: TensorRT cannot take it and CUDA only
+    # adds copies, so models run on the CPU unless their input kind is listed in `accelerate_kinds`.
     providers: list[Provider] = Field(
+        default_factory=lambda: ["cpu"],
+        description="onnxruntime execution providers, in order of preference, for every model whose input kind "
+                    "is not in accelerate_kinds; those not installed are skipped")
+    accelerator_providers: list[Provider] = Field(
         default_factory=lambda: ["tensorrt", "cuda", "cpu"],
-        description="onnxruntime execution providers in order of preference; those not installed are skipped")
+        description="providers, in order of preference, for models whose input kind is in accelerate_kinds")
+    accelerate_kinds: list[Literal["dense_image", "sparse_hits", "scan_hits"]] = Field(
+        default_factory=lambda: ["dense_image"],
+        description="model input kinds that benefit from a GPU (the paper's dense image network)")
     threads: int = Field(default=1, ge=1, le=64, description="onnxruntime intra-op threads")
     # 200 ms admits the paper's dense graph (~70 ms per frame on a 2-core x86 here) so it stays servable
     # for comparison; its exact sparse graph (~4 ms) is the one to serve. Tighten it on the robot.
@@ -33,3 +42,8 @@ class InferConfig(BaseModel):
     require_signature: bool = Field(default=False, description="refuse pushed models without a valid signature")
     signing_public_key: Path | None = None
     max_upload_mb: float = Field(default=2048.0, gt=0)
+
+
+def providers_for(config: InferConfig, input_kind: str) -> list[str]:
+    """The provider preference for a model of this input kind (short names, as in the config)."""
+    return list(config.accelerator_providers if input_kind in config.accelerate_kinds else config.providers)

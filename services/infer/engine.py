@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from courtloc.services.infer.config import InferConfig
+from courtloc.services.infer.config import InferConfig, providers_for
 
 if TYPE_CHECKING:
     from courtloc.localizer.manifest import Manifest
@@ -86,7 +86,8 @@ def load_model(stored: StoredModel, config: InferConfig, golden: GoldenSets | No
         except Exception as exc:
             raise ModelRefused(f"weights unreadable: {type(exc).__name__}: {exc}") from None
     try:
-        predictor = load_predictor(stored.folder, providers=available_providers(config.providers),
+        predictor = load_predictor(stored.folder,
+                                   providers=available_providers(providers_for(config, manifest.input.kind)),
                                    threads=config.threads)
     except Exception as exc:  # onnxruntime raises its own types for bad graphs and wrong shapes
         raise ModelRefused(f"cannot load: {type(exc).__name__}: {exc}") from None
