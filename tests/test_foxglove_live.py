@@ -146,3 +146,18 @@ def test_live_server_speaks_the_foxglove_protocol() -> None:
     shot = seen[SHOT][0]
     assert shot["command"] == "HOLD" and shot["distance_m"] is None and shot["reason"] == "stale"
     assert seen[HEALTH][0]["frames_in"] == 90
+
+
+def test_a_taken_port_is_one_line_and_exit_1(capsys: pytest.CaptureFixture[str]) -> None:
+    import foxglove
+
+    from courtloc.cli import main
+
+    taken = foxglove.start_server(port=0)
+    try:
+        with pytest.raises(SystemExit) as exit_info:
+            main(["foxglove", "--port", str(taken.port), "--connect", endpoint(free_port())])
+    finally:
+        taken.stop()
+    err = capsys.readouterr().err.strip()
+    assert exit_info.value.code == 1 and len(err.splitlines()) == 1 and "port" in err

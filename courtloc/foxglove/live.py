@@ -146,13 +146,15 @@ class FoxgloveLive:
             on_ready: Callable[[str], None] | None = None) -> LiveStats:
         import foxglove  # optional extra
 
-        session = open_session(self.zenoh_config, stop)
-        if session is None:
-            return self.stats
         context = foxglove.Context()
         self._open_channels(context)
+        # the server first: a taken port fails at once, before waiting for the robot's router
         server = foxglove.start_server(name=f"courtloc {self.robot_id}", host=self.host, port=self.port,
                                        context=context)
+        session = open_session(self.zenoh_config, stop)
+        if session is None:
+            server.stop()
+            return self.stats
         newest = _Newest()
         subscribers = [session.declare_subscriber(TOPICS[p].key(self.robot_id),
                                                   lambda sample, p=p: newest.put(p, bytes(sample.payload)))

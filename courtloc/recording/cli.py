@@ -82,7 +82,7 @@ def _deployment(args: argparse.Namespace):  # noqa: ANN202
 
 def run_record(args: argparse.Namespace) -> int:
     from courtloc.recording.foxview import FoxgloveViews
-    from courtloc.recording.mcapfile import Limits, McapSeries
+    from courtloc.recording.mcapfile import Limits, McapSeries, exact_path
     from courtloc.recording.recorder import Recorder, recording_metadata, resolve_topics
 
     config = _deployment(args)
@@ -111,7 +111,7 @@ def run_record(args: argparse.Namespace) -> int:
     ready = lambda: print(f"recording {len(paths)} topic(s) of {config.robot_id} to {args.out}", flush=True)  # noqa: E731
 
     def progress(stats) -> None:  # noqa: ANN001
-        size = sum(f.stat().st_size for f in series.files if f.exists()) / 1e6
+        size = sum(f.stat().st_size for view in series.files for f in (view, exact_path(view)) if f.exists()) / 1e6
         print(f"recorded {stats.total} messages, {size:.1f} MB on disk, {len(series.files)} file(s), "
               f"{stats.overflow} dropped", flush=True)
 
