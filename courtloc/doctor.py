@@ -160,8 +160,9 @@ def deployment_needs(config: Any, facts: dict[str, Any]) -> list[Need]:
             names = [_PROVIDER_NAMES[p] for p in wanted]
             usable = [n for n in names if n in available] or ["CPUExecutionProvider"]
             missing = [n for n in names if n not in available]
+            note = f" ({missing} not installed)" if missing else ""
             needs.append(Need("warn" if missing and usable[0] != names[0] else "ok", field,
-                              f"wants {names}; will use {usable[0]}" + (f" ({missing} not installed)" if missing else "")))
+                              f"wants {names}; will use {usable[0]}{note}"))
     for label, built in facts["kernels"].items():
         needs.append(Need("ok" if built else "warn", f"{label} kernel",
                           "compiled" if built else "not built: the numpy fallback runs, several times slower "

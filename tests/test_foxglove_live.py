@@ -76,7 +76,8 @@ class FoxgloveClient:
             channel = self.by_subscription[subscription]
             assert channel["encoding"] == "json" and channel["schemaEncoding"] == "jsonschema"
             body = json.loads(frame[13:])
-            errors = [e.message for e in jsonschema.Draft202012Validator(json.loads(channel["schema"])).iter_errors(body)]
+            validator = jsonschema.Draft202012Validator(json.loads(channel["schema"]))
+            errors = [e.message for e in validator.iter_errors(body)]
             assert not errors, (channel["topic"], errors)
             return channel, log_time, body
 

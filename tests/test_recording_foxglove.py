@@ -19,7 +19,7 @@ from courtloc.common.services_table import TOPICS
 from courtloc.foxglove.scene import matrix_quaternion
 from courtloc.recording.foxview import FoxgloveViews
 from courtloc.recording.mcapfile import (
-    VIEW_FOXGLOVE, VIEW_JSON, VIEW_MSGPACK, Limits, McapSeries, exact_path, read_series)
+    VIEW_FOXGLOVE, VIEW_MSGPACK, Limits, McapSeries, exact_path, read_series)
 from courtloc.recording.recorder import record_item
 
 jsonschema = pytest.importorskip("jsonschema", reason="the test extra's JSON-schema validator")
@@ -65,9 +65,9 @@ def every_kind_of_message() -> list[tuple[str, Any]]:
                                              wz_gyro_rad_s=float("nan"), wheels_valid=True)),
     ]
     for service in ("camera", "preprocess", "infer", "shooter_bridge"):
-        messages.append((f"{service}/health", Health(robot_id=ROBOT, service=service, pid=1, wall_ns=T0, detail={"k": float("nan"),
-                                                                                               "n": 3, "s": "x"},
-                                                     **health)))
+        detail: dict[str, float | int | str] = {"k": float("nan"), "n": 3, "s": "x"}
+        messages.append((f"{service}/health", Health(robot_id=ROBOT, service=service, pid=1, wall_ns=T0,
+                                                     detail=detail, **health)))
     assert {path for path, _ in messages} == set(TOPICS), "one message per topic of the services table"
     return messages
 

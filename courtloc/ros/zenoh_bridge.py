@@ -14,7 +14,6 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from courtloc.common import codec
@@ -189,5 +188,3 @@ class RosZenohBridge:
         message = self._odometry.convert(ros)
         self.stats.odometry_rejected = dict(self._odometry.rejected)
         publisher.put(codec.encode(message))
-
-
