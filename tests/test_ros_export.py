@@ -121,3 +121,13 @@ def test_export_refuses_an_existing_folder_in_one_line(recording: Path, tmp_path
     with pytest.raises(SystemExit) as exit_info:
         main(["export", "rosbag2", str(tmp_path / "missing.mcap"), str(tmp_path / "new")])
     assert exit_info.value.code == 2 and "no recording" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args, field", [(["--domain", "999"], "domain_id"),
+                                         (["--odometry-topic", "/bad topic"], "odometry_topic")])
+def test_bridge_options_fail_at_start_naming_the_field(args: list[str], field: str,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        main(["ros", "bridge", "--connect", "tcp/127.0.0.1:1", *args])
+    err = capsys.readouterr().err.strip()
+    assert exit_info.value.code == 2 and len(err.splitlines()) == 1 and field in err
