@@ -108,10 +108,8 @@ class Pose(Strict):
     model_version: int
     infer_ms: float
     reason: str = ""
-    # Row-major 3x3 covariance of (x, y, yaw) in m^2, m rad, rad^2 (court frame), from the producer's fit;
-    # None when the model gives none (then a consumer must not invent one). Without yaw, only the
-    # x/y block means something.
-    covariance: Optional[list[float]] = Field(default=None, min_length=9, max_length=9)
+    covariance: list[float] = Field(default_factory=list,
+                                    description="row-major 3x3 covariance of (x, y, yaw) when the model tracks; [] else")
 
 
 class ShotSolution(Strict):

@@ -38,7 +38,6 @@ class Prediction(BaseModel):
     position_std_m: Optional[float] = None
     alternatives: list[tuple[float, float, float]] = Field(default_factory=list)  # symmetry "both"
     trackable: bool = False  # fine as the next frame's `previous` even when not valid (degenerate view)
-    covariance: Optional[list[float]] = None  # row-major 3x3 of (x, y, yaw) from the fit, when it has one
 
 
 class Predictor(Protocol):
@@ -148,15 +147,7 @@ def _prediction(res) -> Prediction:  # noqa: ANN001 - geometric.LocalizeResult
                       n_hits=res.fit.n_hits, n_inliers=res.fit.n_inliers,
                       position_std_m=res.fit.position_std_m if math.isfinite(res.fit.position_std_m) else None,
                       alternatives=[tuple(float(v) for v in a) for a in res.alternatives],
-                      trackable=res.trackable, covariance=_covariance(res.fit.covariance))
-
-
-def _covariance(matrix: np.ndarray | None) -> list[float] | None:
-    """The fit's (x, y, yaw) covariance as 9 floats, or None when there is none or it is not finite."""
-    if matrix is None:
-        return None
-    values = [float(v) for v in np.asarray(matrix, float).reshape(-1)]
-    return values if len(values) == 9 and all(math.isfinite(v) for v in values) else None
+                      trackable=res.trackable)
 
 
 class PaperPredictor:

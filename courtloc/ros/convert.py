@@ -32,7 +32,7 @@ def _quaternion(q: dict[str, float]) -> Any:
 def pose_covariance(pose: Pose) -> np.ndarray:
     """The 6x6 (x, y, z, roll, pitch, yaw) covariance of ROS from the pose's 3x3 (x, y, yaw) one."""
     cov = np.diag([UNKNOWN_VARIANCE] * 6)
-    if pose.covariance is not None:
+    if len(pose.covariance) == 9 and all(math.isfinite(v) for v in pose.covariance):
         small = np.asarray(pose.covariance, float).reshape(3, 3)
         index = [0, 1, 5]
         for i, a in enumerate(index):

@@ -1,7 +1,7 @@
 """`courtloc ros bridge` (EXPERIMENTAL, see rmw_zenoh.py): the robot's pose to ROS 2 nodes running rmw_zenoh
 on the same Zenoh network, and their nav_msgs/Odometry into `shooter_bridge/odometry`.
 
-Out: `<ns>/pose` (geometry_msgs/PoseWithCovarianceStamped, frame `court`, the fit's covariance) and
+Out: `<ns>/pose` (geometry_msgs/PoseWithCovarianceStamped, frame `court`, the pose's covariance) and
 `/tf` (court -> base_link -> camera) for every pose its producer marked valid. In: `--odometry-topic`.
 The Zenoh callbacks only keep the newest sample; conversion and publishing run on the bridge's thread.
 """

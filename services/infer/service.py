@@ -117,7 +117,6 @@ class InferService(Service):
         x = y = 0.0
         yaw: float | None = None
         quality = 0.0
-        covariance: list[float] | None = None
         ok = False
         if len(hits) == 0:
             reason = "no_hits"
@@ -130,11 +129,10 @@ class InferService(Service):
             else:
                 pred = model.predictor.predict(hits, edges.width, edges.height, previous=tracker.previous)
             x, y, yaw, quality = float(pred.x), float(pred.y), pred.yaw, float(pred.quality)
-            covariance = pred.covariance
             tracker.update(x, y, yaw, pred.valid, pred.trackable)
             finite = all(math.isfinite(v) for v in (x, y, *(() if yaw is None else (yaw,))))
             if not finite:
-                reason, x, y, yaw, covariance = "non_finite", 0.0, 0.0, None, None
+                reason, x, y, yaw = "non_finite", 0.0, 0.0, None
             elif not is_on_court(model.court, x, y, self.config.on_court_margin_m):
                 reason = "off_court"
             elif not pred.valid:
@@ -147,7 +145,7 @@ class InferService(Service):
         header = edges.header.forwarded(self.name, valid=ok)
         return Pose(header=header, x=x, y=y, yaw=None if yaw is None else float(yaw), quality=quality,
                     model_name=model.ref.name, model_version=model.ref.version,
-                    infer_ms=(time.perf_counter() - start) * 1e3, reason=reason, covariance=covariance)
+                    infer_ms=(time.perf_counter() - start) * 1e3, reason=reason)
 
     # ---- model control (its own thread) -------------------------------------------------------
     def _enqueue_query(self, query: zenoh.Query) -> None:
