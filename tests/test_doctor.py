@@ -85,3 +85,15 @@ def test_a_bad_config_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[
     config.write_text('[infer]\nproviders = ["tpu"]\n')
     code, out, err = _doctor(capsys, "--config", str(config))
     assert code == 2 and out == "" and len(err.strip().splitlines()) == 1 and "providers" in err
+
+
+def test_the_camera_names_a_missing_gstreamer() -> None:
+    import cv2
+
+    from courtloc.services.camera.config import DeviceSourceConfig
+    from courtloc.services.camera.sources import DeviceSource, SourceError
+
+    if cv2.videoio_registry.hasBackend(cv2.CAP_GSTREAMER):
+        pytest.skip("this OpenCV has GStreamer")
+    with pytest.raises(SourceError, match="no GStreamer.*docs/jetson.md"):
+        DeviceSource(DeviceSourceConfig(device=PIPELINE)).open()
