@@ -52,6 +52,13 @@ def opencv_facts() -> dict[str, Any]:
     from cv2 import videoio_registry
 
     build = cv2.getBuildInformation()
+    # another cv2 later on sys.path (JetPack's, under a venv with system site packages) is shadowed by this one
+    from importlib.machinery import PathFinder
+
+    loaded = Path(cv2.__file__).resolve().parent
+    shadowed = sorted({str(Path(spec.origin).resolve().parent) for entry in sys.path if entry
+                       for spec in [PathFinder.find_spec("cv2", [entry])]
+                       if spec is not None and spec.origin and Path(spec.origin).resolve().parent != loaded})
     found = re.search(r"^\s*GStreamer:\s*(.+)$", build, re.MULTILINE)
     gst_line = found.group(1).strip() if found else "not listed"
     origin = str(Path(cv2.__file__).resolve())
@@ -61,7 +68,8 @@ def opencv_facts() -> dict[str, Any]:
             "gstreamer_build": gst_line,
             "video_backends": sorted({videoio_registry.getBackendName(b) for b in videoio_registry.getBackends()
                                       if videoio_registry.hasBackend(b)}),
-            "cuda_devices": int(cv2.cuda.getCudaEnabledDeviceCount()) if hasattr(cv2, "cuda") else 0}
+            "cuda_devices": int(cv2.cuda.getCudaEnabledDeviceCount()) if hasattr(cv2, "cuda") else 0,
+            "shadowed": shadowed}
 
 
 def onnxruntime_facts() -> dict[str, Any]:
@@ -145,10 +153,12 @@ def deployment_needs(config: Any, facts: dict[str, Any]) -> list[Need]:
         elif cv.get("gstreamer"):
             needs.append(Need("ok", "camera.device.device", "a GStreamer pipeline; this OpenCV has GStreamer"))
         else:
+            hint = (f"pip's OpenCV shadows {cv['shadowed']}: pip uninstall opencv-python-headless"
+                    if cv.get("shadowed") else "use JetPack's OpenCV through a venv with --system-site-packages, "
+                                               "or the v4l2loopback bridge of docs/jetson.md and a V4L2 index")
             needs.append(Need("fail", "camera.device.device",
                               f"a GStreamer pipeline, but this OpenCV ({cv.get('from', 'not installed')}) has no "
-                              "GStreamer: use JetPack's OpenCV through a venv with --system-site-packages, or the "
-                              "v4l2loopback bridge of docs/jetson.md and a V4L2 index"))
+                              f"GStreamer: {hint}"))
     ort = facts["onnxruntime"]
     if len(ort.get("distributions", {})) > 1:
         needs.append(Need("fail", "onnxruntime", f"both {sorted(ort['distributions'])} are installed and shadow "
@@ -198,7 +208,8 @@ def _report(facts: dict[str, Any], needs: list[Need], config_name: str) -> str:
     lines = ["This machine:",
              f"  platform      {facts['platform']}, Python {facts['python']}, Jetson: {facts['jetson'] or 'no'}",
              (f"  OpenCV        {cv['version']} from {cv['from']}; GStreamer: {cv['gstreamer_build']}; "
-              f"video backends: {', '.join(cv['video_backends'])}" if cv["installed"] else
+              f"video backends: {', '.join(cv['video_backends'])}"
+              + (f"; shadows the cv2 in {', '.join(cv['shadowed'])}" if cv["shadowed"] else "") if cv["installed"] else
               f"  OpenCV        not importable: {cv['error']}"),
              (f"  onnxruntime   {ort['version']} ({', '.join(f'{k} {v}' for k, v in ort['distributions'].items())}); "
               f"providers: {', '.join(ort['providers'])}" if ort["installed"] else

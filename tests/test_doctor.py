@@ -6,6 +6,7 @@ import copy
 import importlib
 import json
 import re
+import sys
 from pathlib import Path
 
 import pytest
@@ -97,3 +98,19 @@ def test_the_camera_names_a_missing_gstreamer() -> None:
         pytest.skip("this OpenCV has GStreamer")
     with pytest.raises(SourceError, match="no GStreamer.*docs/jetson.md"):
         DeviceSource(DeviceSourceConfig(device=PIPELINE)).open()
+
+
+def test_a_shadowed_opencv_is_named(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """JetPack's cv2 behind pip's (venv with system site packages, pip's OpenCV not uninstalled)."""
+    system = tmp_path / "dist-packages"
+    (system / "cv2").mkdir(parents=True)
+    (system / "cv2" / "__init__.py").write_text("raise ImportError('never imported by the doctor')\n")
+    monkeypatch.setattr(sys, "path", [*sys.path, str(system)])
+    facts = machine_facts()
+    assert facts["opencv"]["shadowed"] == [str((system / "cv2").resolve())]
+    config = tmp_path / "robot.toml"
+    config.write_text(f'[camera]\nsource = "device"\n[camera.device]\ndevice = "{PIPELINE}"\n')
+    if not facts["opencv"]["gstreamer"]:
+        code, out, _ = _doctor(capsys, "--config", str(config))
+        assert code == 1 and "pip uninstall opencv-python-headless" in out
