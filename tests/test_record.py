@@ -169,3 +169,18 @@ def test_a_recording_cut_short_is_readable_up_to_the_last_flush(tmp_path: Path) 
     recovered = [codec.decode(r.data, Pose).x for r in read_series([cut])]
     assert recovered == [0.0, 1.0, 2.0, 3.0, 4.0]
     assert len(list(read_series([out]))) == 6, "the finished file has everything"
+
+
+def test_replay_without_the_exact_file_says_which_file_is_missing(tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    from courtloc.cli import main
+
+    out = tmp_path / "view.mcap"
+    series = McapSeries(out, Limits(), {})
+    series.write(_item("infer/pose", _pose(1), 1_000))
+    series.close()
+    exact_path(out).unlink()  # copied without its twin
+    with pytest.raises(SystemExit) as exit_info:
+        main(["replay", str(out), "--connect", "tcp/127.0.0.1:1"])
+    err = capsys.readouterr().err.strip()
+    assert exit_info.value.code == 2 and len(err.splitlines()) == 1 and "view.exact.mcap" in err

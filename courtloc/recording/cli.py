@@ -127,7 +127,7 @@ def run_record(args: argparse.Namespace) -> int:
 
 def run_replay(args: argparse.Namespace) -> int:
     from courtloc.common.services_table import TOPICS
-    from courtloc.recording.mcapfile import dumps_summary, series_files
+    from courtloc.recording.mcapfile import dumps_summary, exact_path, recorded_channels, series_files
     from courtloc.recording.replay import Replayer, ReplayOptions
 
     from mcap.exceptions import McapError
@@ -135,12 +135,17 @@ def run_replay(args: argparse.Namespace) -> int:
     try:
         files = series_files(args.input)
         summary = dumps_summary(files)  # reads every file's summary: a broken file is named before replay
+        exact = recorded_channels(files)
     except (FileNotFoundError, McapError, OSError) as exc:
         print(f"replay: {exc}", file=sys.stderr)
         return 2
     if args.info:
         print(summary)
         return 0
+    if not exact and not any(exact_path(f).exists() for f in files):
+        print(f"replay: {files[0]} holds no exact payloads: keep {exact_path(files[0]).name} beside it",
+              file=sys.stderr)
+        return 2
     if args.speed <= 0:
         print(f"--speed must be > 0, got {args.speed}", file=sys.stderr)
         return 2
