@@ -152,6 +152,14 @@ def test_record_command_keeps_bad_payloads_and_skips_frames_by_default(tmp_path:
     assert [codec.decode(p, Pose).x for p in poses[:-1]] == [0.5 * s for s in range(10)]
     assert not any(r.path == "camera/frame" for r in records)
     assert sum(1 for _ in read_series([out], view=VIEW_JSON)) == 11, "JSON views of the 11 decodable messages"
+    jsonschema = pytest.importorskip("jsonschema", reason="the test extra's JSON-schema validator")
+    with out.open("rb") as handle:  # what `courtloc record` wrote: every message valid against its stored schema
+        checked = 0
+        for schema, channel, message in make_reader(handle, validate_crcs=True).iter_messages():
+            errors = list(jsonschema.Draft202012Validator(json.loads(schema.data)).iter_errors(json.loads(message.data)))
+            assert not errors, (channel.topic, errors[0].message)
+            checked += 1
+    assert checked > 11, "the JSON views plus the Foxglove channels (scene, poses in frame, TF)"
 
 
 def test_a_recording_cut_short_is_readable_up_to_the_last_flush(tmp_path: Path) -> None:
