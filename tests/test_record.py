@@ -156,7 +156,8 @@ def test_record_command_keeps_bad_payloads_and_skips_frames_by_default(tmp_path:
     with out.open("rb") as handle:  # what `courtloc record` wrote: every message valid against its stored schema
         checked = 0
         for schema, channel, message in make_reader(handle, validate_crcs=True).iter_messages():
-            errors = list(jsonschema.Draft202012Validator(json.loads(schema.data)).iter_errors(json.loads(message.data)))
+            validator = jsonschema.Draft202012Validator(json.loads(schema.data))
+            errors = list(validator.iter_errors(json.loads(message.data)))
             assert not errors, (channel.topic, errors[0].message)
             checked += 1
     assert checked > 11, "the JSON views plus the Foxglove channels (scene, poses in frame, TF)"
