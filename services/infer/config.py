@@ -16,6 +16,11 @@ def default_store_path() -> Path:
 Provider = Literal["tensorrt", "cuda", "cpu"]
 
 
+def providers_for(config: "InferConfig", input_kind: str) -> list[str]:
+    """The provider preference for a model of this input kind (short names, as in the config)."""
+    return list(config.accelerator_providers if input_kind in config.accelerate_kinds else config.providers)
+
+
 class InferConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
@@ -42,8 +47,3 @@ class InferConfig(BaseModel):
     require_signature: bool = Field(default=False, description="refuse pushed models without a valid signature")
     signing_public_key: Path | None = None
     max_upload_mb: float = Field(default=2048.0, gt=0)
-
-
-def providers_for(config: InferConfig, input_kind: str) -> list[str]:
-    """The provider preference for a model of this input kind (short names, as in the config)."""
-    return list(config.accelerator_providers if input_kind in config.accelerate_kinds else config.providers)
