@@ -55,11 +55,16 @@ class CDecoder(ctypes.Structure):
 FRAME_CB = ctypes.CFUNCTYPE(None, ctypes.POINTER(CFrame), ctypes.c_void_p)
 
 
-@pytest.fixture(scope="module")
-def lib(tmp_path_factory: pytest.TempPathFactory) -> ctypes.CDLL:
+def c_compiler() -> str:
     compiler = shutil.which("cc") or shutil.which("gcc") or shutil.which("clang")
     if compiler is None:
         pytest.skip("no C compiler on this machine")
+    return compiler
+
+
+@pytest.fixture(scope="module")
+def lib(tmp_path_factory: pytest.TempPathFactory) -> ctypes.CDLL:
+    compiler = c_compiler()
     out = tmp_path_factory.mktemp("firmware") / "libcourtloc_mcu.so"
     # -Werror -pedantic: the file must build warning-free on a strict C99 toolchain, as on an MCU
     subprocess.run([compiler, "-std=c99", "-Wall", "-Wextra", "-Wconversion", "-pedantic", "-Werror", "-O2",
@@ -137,6 +142,8 @@ def vectors() -> dict[str, Any]:
 def test_vectors_are_what_the_python_implementation_produces() -> None:
     generator = runpy.run_path(str(FIRMWARE / "make_vectors.py"))
     assert (FIRMWARE / "test_vectors.json").read_text() == generator["render"](), \
+        "protocol.py changed: regenerate with python deploy/firmware/make_vectors.py"
+    assert (FIRMWARE / "test_vectors.h").read_text() == generator["render_header"](), \
         "protocol.py changed: regenerate with python deploy/firmware/make_vectors.py"
     data = vectors()
     for case in data["encode"]:
@@ -255,3 +262,16 @@ def test_corrupted_streams_decode_identically(lib: ctypes.CDLL) -> None:
         assert c.stats() == {name: getattr(python.stats, name) for name in STATS}
         assert c.buffered == python.buffered
     assert python.stats.crc_errors and python.stats.bad_length and python.stats.discarded_bytes
+
+
+def test_the_c_selftest_passes_on_the_generated_header(tmp_path: Path) -> None:
+    """selftest.c + test_vectors.h: what a firmware team runs on the host or at the MCU's boot."""
+    exe = tmp_path / "selftest"
+    subprocess.run([c_compiler(), "-std=c99", "-Wall", "-Wextra", "-Wconversion", "-pedantic", "-Werror",
+                    str(FIRMWARE / "selftest.c"), str(FIRMWARE / "courtloc_mcu.c"), "-o", str(exe)],
+                   check=True, capture_output=True, text=True)
+    run = subprocess.run([str(exe)], capture_output=True, text=True, timeout=30)
+    assert run.returncode == 0 and run.stdout.startswith("ok: 0 of "), run.stdout
+    total = int(run.stdout.split(" of ")[1].split()[0])
+    data = vectors()
+    assert total == 1 + len(data["encode"]) + len(data["odometry"]) + 2 * len(data["decode"])
