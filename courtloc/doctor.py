@@ -22,6 +22,9 @@ from typing import Any, Literal
 
 KERNELS = {"radial scan": "courtloc.services.preprocess._scan_kernel", "pose fit": "courtloc.localizer._fit_kernel"}
 ORT_DISTRIBUTIONS = ("onnxruntime", "onnxruntime-gpu")
+# optional extras and what they enable (pit laptop tools)
+EXTRAS = {"foxglove-sdk": "courtloc foxglove", "rosbags": "courtloc export rosbag2 / ros bridge",
+          "torch": "courtloc train"}
 _PROVIDER_NAMES = {"tensorrt": "TensorrtExecutionProvider", "cuda": "CUDAExecutionProvider",
                    "cpu": "CPUExecutionProvider"}
 Level = Literal["ok", "warn", "fail"]
@@ -87,6 +90,16 @@ def onnxruntime_facts() -> dict[str, Any]:
             "distributions": distributions}
 
 
+def extras_facts() -> dict[str, str | None]:
+    found: dict[str, str | None] = {}
+    for name in EXTRAS:
+        try:
+            found[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            found[name] = None
+    return found
+
+
 def kernel_facts() -> dict[str, bool]:
     built = {}
     for label, module in KERNELS.items():
@@ -135,7 +148,7 @@ def clock_facts() -> dict[str, Any]:
 def machine_facts() -> dict[str, Any]:
     return {"platform": f"{platform.system()} {platform.release()} {platform.machine()}",
             "python": sys.version.split()[0], "jetson": _jetson_model(), "opencv": opencv_facts(),
-            "onnxruntime": onnxruntime_facts(), "kernels": kernel_facts(), "shm": shm_facts(),
+            "onnxruntime": onnxruntime_facts(), "kernels": kernel_facts(), "extras": extras_facts(), "shm": shm_facts(),
             "clock": clock_facts()}
 
 
@@ -219,6 +232,8 @@ def _report(facts: dict[str, Any], needs: list[Need], config_name: str) -> str:
              f"  shared memory {shm['path']}: {'writable' if shm.get('writable') else 'unusable'}, "
              f"{shm.get('free_mb', 0)} MB free; zenoh SHM API: {'yes' if shm['zenoh_shm_api'] else 'no'}",
              f"  clock sync    {clock['synchronized']} ({clock['source']})",
+             "  extras        " + ", ".join(f"{k} {v or 'not installed'} ({EXTRAS[k]})"
+                                          for k, v in facts["extras"].items()),
              f"What {config_name} needs:"]
     marks = {"ok": "ok  ", "warn": "warn", "fail": "FAIL"}
     lines += [f"  [{marks[n.level]}] {n.what}: {n.detail}" for n in needs]

@@ -54,6 +54,9 @@ def test_machine_facts_are_what_the_libraries_say(capsys: pytest.CaptureFixture[
         assert machine["kernels"][label] is built
     assert machine["shm"]["present"] == Path("/dev/shm").is_dir()
     assert machine["clock"]["synchronized"] in (True, False, None)
+    from importlib import metadata
+
+    assert machine["extras"]["rosbags"] == metadata.version("rosbags")
     assert code == (1 if any(n["level"] == "fail" for n in report["needs"]) else 0)
     infer = next(n for n in report["needs"] if n["what"] == "infer.providers")
     assert "CPUExecutionProvider" in infer["detail"]
