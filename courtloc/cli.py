@@ -12,11 +12,13 @@ from typing import NoReturn, Sequence
 
 from pydantic import ValidationError
 
-from courtloc import bench, model_cli, preprocess_cli, shooter_cli, stage_cli, up_cli
+from courtloc import bench, doctor, export_cli, model_cli, preprocess_cli, shooter_cli, stage_cli, up_cli
 from courtloc.cli_errors import RUN_EXIT, USAGE_EXIT, UsageError
+from courtloc.foxglove import cli as foxglove_cli
 from courtloc.lab import eval_cli, localizer_cli
 from courtloc.monitor import cli as monitor_cli
 from courtloc.recording import cli as recording_cli
+from courtloc.ros import cli as ros_cli
 from courtloc.security import cli as security_cli
 from courtloc.sim import cli as sim_cli
 from courtloc.training import cli as training_cli
@@ -24,7 +26,7 @@ from courtloc.training import cli as training_cli
 # Each module here exposes `register(subparsers)`, adding its sub-command(s) with `set_defaults(func=...)`.
 COMMAND_MODULES: tuple[ModuleType, ...] = (
     bench, sim_cli, shooter_cli, stage_cli, up_cli, model_cli, training_cli, eval_cli, localizer_cli,
-    preprocess_cli, security_cli, recording_cli, monitor_cli,
+    preprocess_cli, security_cli, recording_cli, monitor_cli, export_cli, ros_cli, foxglove_cli, doctor,
 )
 
 EPILOG = """\

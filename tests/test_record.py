@@ -16,7 +16,7 @@ from courtloc.common import codec
 from courtloc.common.messages import Frame, Header, Health, Pose
 from courtloc.common.services_table import TOPICS
 from courtloc.recording.jsonview import json_view, schema_data
-from courtloc.recording.mcapfile import VIEW_JSON, Limits, McapSeries, RecordItem, read_series, series_files
+from courtloc.recording.mcapfile import VIEW_JSON, Limits, McapSeries, RecordItem, exact_path, read_series, series_files
 from courtloc.recording.recorder import resolve_topics
 
 ROBOT = "robot1"
@@ -151,6 +151,15 @@ def test_record_command_keeps_bad_payloads_and_skips_frames_by_default(tmp_path:
     assert [codec.decode(p, Pose).x for p in poses[:-1]] == [0.5 * s for s in range(10)]
     assert not any(r.path == "camera/frame" for r in records)
     assert sum(1 for _ in read_series([out], view=VIEW_JSON)) == 11, "JSON views of the 11 decodable messages"
+    jsonschema = pytest.importorskip("jsonschema", reason="the test extra's JSON-schema validator")
+    with out.open("rb") as handle:  # what `courtloc record` wrote: every message valid against its stored schema
+        checked = 0
+        for schema, channel, message in make_reader(handle, validate_crcs=True).iter_messages():
+            validator = jsonschema.Draft202012Validator(json.loads(schema.data))
+            errors = list(validator.iter_errors(json.loads(message.data)))
+            assert not errors, (channel.topic, errors[0].message)
+            checked += 1
+    assert checked > 11, "the JSON views plus the Foxglove channels (scene, poses in frame, TF)"
 
 
 def test_a_recording_cut_short_is_readable_up_to_the_last_flush(tmp_path: Path) -> None:
@@ -162,8 +171,24 @@ def test_a_recording_cut_short_is_readable_up_to_the_last_flush(tmp_path: Path) 
     series.tick(now=time.monotonic() + 2.0)  # a second passed: the open chunk is closed and written
     series.write(_item("infer/pose", _pose(5), 2_000))  # still in the open chunk when the "power" goes
     cut = tmp_path / "copy.mcap"
-    cut.write_bytes(out.read_bytes())  # the file as the disk holds it now: no summary, no footer
+    cut.write_bytes(out.read_bytes())  # the files as the disk holds them now: no summary, no footer
+    exact_path(cut).write_bytes(exact_path(out).read_bytes())
     series.close()
     recovered = [codec.decode(r.data, Pose).x for r in read_series([cut])]
     assert recovered == [0.0, 1.0, 2.0, 3.0, 4.0]
     assert len(list(read_series([out]))) == 6, "the finished file has everything"
+
+
+def test_replay_without_the_exact_file_says_which_file_is_missing(tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    from courtloc.cli import main
+
+    out = tmp_path / "view.mcap"
+    series = McapSeries(out, Limits(), {})
+    series.write(_item("infer/pose", _pose(1), 1_000))
+    series.close()
+    exact_path(out).unlink()  # copied without its twin
+    with pytest.raises(SystemExit) as exit_info:
+        main(["replay", str(out), "--connect", "tcp/127.0.0.1:1"])
+    err = capsys.readouterr().err.strip()
+    assert exit_info.value.code == 2 and len(err.splitlines()) == 1 and "view.exact.mcap" in err

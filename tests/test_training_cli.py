@@ -27,7 +27,7 @@ def test_train_export_eval_explain(tmp_path: Path, capsys: pytest.CaptureFixture
     assert _run(["train", "--data", str(data), "--out", str(run), "--crop-top", "16", "--epochs", "2",
                  "--lr", "1e-3", "--seed", "3", "--train-recordings", "20240101",
                  "--val-recordings", "20240102", "--no-progress"]) == 0
-    assert _run(["export", str(run / "model.pt"), "--out", str(run / "onnx"), "--version", "5"]) == 0
+    assert _run(["export", "onnx", str(run / "model.pt"), "--out", str(run / "onnx"), "--version", "5"]) == 0
     metrics_file = tmp_path / "eval.json"
     plots = tmp_path / "plots"
     capsys.readouterr()

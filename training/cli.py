@@ -1,4 +1,4 @@
-"""`courtloc train`, `courtloc export`, `courtloc explain`: the training-side commands (need the `train` extra)."""
+"""`courtloc train`, `courtloc export onnx`, `courtloc explain`: the training-side commands (need the `train` extra)."""
 from __future__ import annotations
 
 import argparse
@@ -8,6 +8,20 @@ from pathlib import Path
 from courtloc.cli_errors import UsageError
 from courtloc.cliargs import nonnegative_int, positive_float, positive_int
 from courtloc.lab.dataset_args import add_dataset_arguments
+
+
+def register_export(export_sub: argparse._SubParsersAction) -> None:
+    """The hook of `courtloc export` (courtloc/export_cli.py EXPORT_COMMAND_MODULES): `export onnx`."""
+    export = export_sub.add_parser("onnx", help="export a trained paper network to dense + sparse ONNX with manifests")
+    export.add_argument("weights", type=Path, help="OUT/model.pt written by `courtloc train`")
+    export.add_argument("--out", type=Path, required=True, help="folder for NAME-dense.onnx / NAME-sparse.onnx")
+    export.add_argument("--graphs", nargs="+", choices=("dense", "sparse"), default=["dense", "sparse"])
+    export.add_argument("--name", default="paper-mlp")
+    export.add_argument("--version", type=positive_int, default=1)
+    export.add_argument("--court", default="seed-gazebo")
+    export.add_argument("--camera", default="seed-gazebo")
+    export.set_defaults(func=_export)
+
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,16 +47,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="CNN baselines only: K x K max-pool inside the network (input stays full size)")
     train.add_argument("--no-progress", action="store_true")
     train.set_defaults(func=_train)
-
-    export = sub.add_parser("export", help="export a trained paper network to dense + sparse ONNX with manifests")
-    export.add_argument("weights", type=Path, help="OUT/model.pt written by `courtloc train`")
-    export.add_argument("--out", type=Path, required=True, help="folder for NAME-dense.onnx / NAME-sparse.onnx")
-    export.add_argument("--graphs", nargs="+", choices=("dense", "sparse"), default=["dense", "sparse"])
-    export.add_argument("--name", default="paper-mlp")
-    export.add_argument("--version", type=positive_int, default=1)
-    export.add_argument("--court", default="seed-gazebo")
-    export.add_argument("--camera", default="seed-gazebo")
-    export.set_defaults(func=_export)
 
     explain = sub.add_parser("explain", help="Integrated Gradients saliency PNGs of the paper network")
     explain.add_argument("--model", type=Path, required=True, help="OUT/model.pt written by `courtloc train`")

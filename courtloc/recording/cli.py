@@ -15,7 +15,8 @@ from courtloc.common.services_table import TOPICS
 from courtloc.common.signals import stop_on_signals
 from courtloc.recording.busargs import add_client_arguments, client_deployment
 from courtloc.recording.capture import CSV_NAME, Capture, CaptureOptions
-from courtloc.recording.mcapfile import Limits, McapSeries, dumps_summary, series_files
+from courtloc.recording.foxview import FoxgloveViews
+from courtloc.recording.mcapfile import Limits, McapSeries, dumps_summary, exact_path, recorded_channels, series_files
 from courtloc.recording.recorder import Recorder, recording_metadata, resolve_topics
 from courtloc.recording.replay import Replayer, ReplayOptions
 
@@ -33,6 +34,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     record.add_argument("--duration", type=positive_float, default=None,
                         help="stop after S seconds (default: Ctrl-C)")
     record.add_argument("--max-messages", type=positive_int, default=None, metavar="N", help="stop after N messages")
+    record.add_argument("--court", default=None, help="court drawn in Foxglove's 3D panel (default: the config's)")
+    record.add_argument("--camera", default=None,
+                        help="camera model placing the camera on the robot in TF (default: the config's)")
     add_client_arguments(record)
     record.set_defaults(func=run_record)
 
@@ -98,14 +102,19 @@ def run_record(args: argparse.Namespace) -> int:
         raise UsageError(f"--topics: {exc}") from exc
     config = _deployment(args)
     limits = Limits(max_bytes=int(args.max_mb * 1e6) if args.max_mb else None, max_seconds=args.max_seconds)
+    try:
+        foxglove = FoxgloveViews.load(args.court or config.camera.sim.get("court", config.court),
+                                      args.camera or config.camera.sim.get("camera"))
+    except (ValueError, OSError) as exc:
+        raise UsageError(f"--court/--camera: {exc}") from exc
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    series = McapSeries(args.out, limits, recording_metadata(config.robot_id, paths))
+    series = McapSeries(args.out, limits, recording_metadata(config.robot_id, paths), foxglove)
     stop = stop_on_signals()
     recorder = Recorder(config.robot_id, config.zenoh, paths, series)
     ready = lambda: print(f"recording {len(paths)} topic(s) of {config.robot_id} to {args.out}", flush=True)  # noqa: E731
 
     def progress(stats) -> None:  # noqa: ANN001
-        size = sum(f.stat().st_size for f in series.files if f.exists()) / 1e6
+        size = sum(f.stat().st_size for view in series.files for f in (view, exact_path(view)) if f.exists()) / 1e6
         print(f"recorded {stats.total} messages, {size:.1f} MB on disk, {len(series.files)} file(s), "
               f"{stats.overflow} dropped", flush=True)
 
@@ -123,11 +132,14 @@ def run_replay(args: argparse.Namespace) -> int:
     files = _recording_files(args.input)
     try:
         summary = dumps_summary(files)  # reads every file's summary: a broken file is named before replay
+        exact = recorded_channels(files)
     except (McapError, OSError, EOFError, ValueError) as exc:
         raise UsageError(f"{args.input}: not a readable MCAP recording ({type(exc).__name__}: {exc})") from exc
     if args.info:
         print(summary)
         return 0
+    if not exact and not any(exact_path(f).exists() for f in files):
+        raise UsageError(f"{files[0]} holds no exact payloads: keep {exact_path(files[0]).name} beside it")
     unknown = [p for p in args.only or [] if p not in TOPICS]
     if unknown:
         raise UsageError(f"--only: unknown topic(s) {unknown}; known: {sorted(TOPICS)}")

@@ -5,6 +5,8 @@ Foxglove's JSON encoding wants standard base64 strings for binary fields, flagge
 here. JSON has no NaN or infinity: non-finite floats become null in the view (the msgpack copy keeps
 them exactly).
 
+Every float of a courtloc schema is "number or null" for that reason.
+
 Frames are the exception to "the view is the courtloc message": a base64 blob helps nobody, so a
 Frame's view is Foxglove's own image message (`foxglove.CompressedImage` for JPEG, `foxglove.RawImage`
 for raw BGR), which Foxglove's Image panel shows. The full Frame, header included, stays on the
@@ -23,18 +25,7 @@ from pydantic import BaseModel
 
 from courtloc.common.messages import Frame
 from courtloc.common.services_table import TOPICS
-
-_BASE64 = {"type": "string", "contentEncoding": "base64"}
-_TIME = {"type": "object", "properties": {"sec": {"type": "integer", "minimum": 0},
-                                          "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}}}
-# The fields Foxglove documents for its image schemas (JSON encoding).
-FOXGLOVE_SCHEMAS: dict[str, dict[str, Any]] = {
-    "foxglove.CompressedImage": {"type": "object", "title": "foxglove.CompressedImage", "properties": {
-        "timestamp": _TIME, "frame_id": {"type": "string"}, "data": _BASE64, "format": {"type": "string"}}},
-    "foxglove.RawImage": {"type": "object", "title": "foxglove.RawImage", "properties": {
-        "timestamp": _TIME, "frame_id": {"type": "string"}, "width": {"type": "integer"},
-        "height": {"type": "integer"}, "encoding": {"type": "string"}, "step": {"type": "integer"}, "data": _BASE64}},
-}
+from courtloc.foxglove.schemas import is_foxglove, schema_bytes
 
 
 @dataclass(frozen=True)
@@ -58,12 +49,27 @@ def _message_types() -> dict[str, type[BaseModel]]:
 @lru_cache(maxsize=None)
 def schema_data(name: str) -> bytes:
     """JSON Schema bytes of a courtloc message type or of a Foxglove image type, by schema name."""
-    if name in FOXGLOVE_SCHEMAS:
-        return json.dumps(FOXGLOVE_SCHEMAS[name], sort_keys=True).encode()
+    if is_foxglove(name):
+        return schema_bytes(name)
     message_type = _message_types()[name]
     schema = message_type.model_json_schema(mode="serialization")
     schema["title"] = name
-    return json.dumps(_mark_binary(schema), sort_keys=True).encode()
+    return json.dumps(_nullable_numbers(_mark_binary(schema)), sort_keys=True).encode()
+
+
+def _nullable_numbers(node: Any) -> Any:
+    """Every float field may be null in the view (JSON has no NaN or infinity, see _jsonable), so the
+    schema says so: a ShotSolution without a distance (NaN) is then valid against its own schema."""
+    if isinstance(node, dict):
+        if node.get("type") == "number":
+            rest = {k: v for k, v in node.items() if k != "type"}
+            return {**rest, "anyOf": [{"type": "number"}, {"type": "null"}]}
+        if any(isinstance(o, dict) and o.get("type") == "null" for o in node.get("anyOf", [])):
+            return node  # already nullable (an Optional field)
+        return {k: _nullable_numbers(v) for k, v in node.items()}
+    if isinstance(node, list):
+        return [_nullable_numbers(v) for v in node]
+    return node
 
 
 def _mark_binary(node: Any) -> Any:

@@ -1,12 +1,15 @@
 """Our layout of bus recordings in MCAP files, written with rotation and read back in order.
 
-Each recorded topic has two channels:
-- a JSON channel (message encoding `json`, schema encoding `jsonschema`, schema `courtloc.<Type>`, or
-  a Foxglove image schema for frames, see jsonview), named like the zenoh key: what Foxglove and
-  `mcap cat` show;
-- a msgpack channel (message encoding `msgpack`, schema `courtloc.<Type>`, topic `<key>#msgpack`) holding
-  the exact payload that was on the bus: replay publishes these bytes, so it is bit-exact.
-A payload that did not decode is kept on the msgpack channel only (nothing is lost).
+A recording is a pair of files, so that a Foxglove user's topic list holds only what Foxglove can show:
+- `OUT.mcap`, the view (open this in Foxglove, `mcap cat`): per recorded topic a JSON channel (message
+  encoding `json`, schema encoding `jsonschema`, schema `courtloc.<Type>` or a Foxglove image schema for
+  frames, see jsonview) named like the zenoh key, plus the Foxglove channels of foxview (poses as
+  PoseInFrame, TF, the court as a SceneUpdate, hits as image annotations);
+- `OUT.exact.mcap`, the exact payloads (message encoding `msgpack`, schema `courtloc.<Type>`, topic =
+  the zenoh key): the bytes that were on the bus; replay publishes these, so it is bit-exact. A payload
+  that did not decode is kept here only (nothing is lost).
+Readers find the exact file next to the view (`exact_path`); a single file that holds both kinds of
+channel (recordings made before the split, topics `<key>#msgpack`) is read as well.
 Channel metadata `courtloc.path`, `courtloc.robot_id` and `courtloc.view` say what a channel holds,
 so readers never parse topic names.
 """
@@ -26,13 +29,15 @@ from mcap.summary import Summary
 from mcap.writer import CompressionType, Writer
 
 from courtloc.common.services_table import TOPICS
+from courtloc.recording.foxview import FoxgloveViews, TopicView
 from courtloc.recording.jsonview import JsonView, schema_data, schema_name
 
 log = logging.getLogger("courtloc.recording")
 
 VIEW_JSON = "json"
 VIEW_MSGPACK = "msgpack"
-RAW_SUFFIX = "#msgpack"
+VIEW_FOXGLOVE = "foxglove"
+EXACT_SUFFIX = ".exact.mcap"
 LIBRARY = "courtloc record"
 # Data still in an open chunk is lost if the recorder dies hard (power, SIGKILL): chunks are closed
 # at least this often, so a cut-short file loses about a second.
@@ -50,6 +55,7 @@ class RecordItem:
     sequence: int
     raw: bytes  # the exact msgpack payload
     json: JsonView | None  # None when the payload did not decode
+    extras: tuple[TopicView, ...] = ()  # Foxglove channels derived from the message (foxview)
 
 
 @dataclass(frozen=True)
@@ -66,7 +72,12 @@ def part_path(out: Path, index: int) -> Path:
     return out.with_name(f"{out.stem}-{index:03d}{out.suffix}")
 
 
-class _OpenFile:
+def exact_path(view_file: Path) -> Path:
+    """run.mcap -> run.exact.mcap: where the exact payloads of a view file are."""
+    return view_file.with_name(view_file.stem + EXACT_SUFFIX)
+
+
+class _FileWriter:
     """One MCAP file being written; schemas and channels are registered on first use."""
 
     def __init__(self, path: Path, chunk_size: int, metadata: dict[str, str]) -> None:
@@ -79,50 +90,35 @@ class _OpenFile:
         self.schemas: dict[str, int] = {}
         self.schema_bytes = 0
         self.channels: dict[tuple[str, str, str, str], int] = {}
-        self.first_log_time: int | None = None
-        self.messages = 0
-        self.unflushed = 0
-        self.flushed_at = time.monotonic()
         self._last_pos = self.handle.tell()
         self._pending = 0  # bytes handed to the writer since the file last grew (an open chunk)
 
-    def channel(self, path: str, robot_id: str, view: str, schema: str) -> int:
-        found = self.channels.get((path, robot_id, view, schema))
+    def channel(self, topic: str, path: str, robot_id: str, view: str, schema: str) -> int:
+        found = self.channels.get((topic, robot_id, view, schema))
         if found is not None:
             return found
         if schema not in self.schemas:
             data = schema_data(schema)
             self.schemas[schema] = self.writer.register_schema(schema, "jsonschema", data)
             self.schema_bytes += len(data)
-        key = TOPICS[path].key(robot_id)
         channel_id = self.writer.register_channel(
-            topic=key if view == VIEW_JSON else key + RAW_SUFFIX,
-            message_encoding=view, schema_id=self.schemas[schema],
+            topic=topic, message_encoding=VIEW_MSGPACK if view == VIEW_MSGPACK else VIEW_JSON,
+            schema_id=self.schemas[schema],
             metadata={"courtloc.path": path, "courtloc.robot_id": robot_id, "courtloc.view": view})
-        self.channels[(path, robot_id, view, schema)] = channel_id
+        self.channels[(topic, robot_id, view, schema)] = channel_id
         return channel_id
 
-    def add(self, item: RecordItem) -> None:
-        if self.first_log_time is None:
-            self.first_log_time = item.log_time
-        views = [(VIEW_MSGPACK, schema_name(TOPICS[item.path].message), item.raw)]
-        if item.json is not None:
-            views.append((VIEW_JSON, item.json.schema_name, item.json.data))
-        for view, schema, data in views:
-            self.writer.add_message(self.channel(item.path, item.robot_id, view, schema), log_time=item.log_time,
-                                    data=data, publish_time=item.publish_time, sequence=item.sequence)
-            self._pending += len(data) + 48  # + record header and its message-index entry
-        self.messages += 1
-        self.unflushed += 1
+    def add(self, channel_id: int, item: RecordItem, data: bytes) -> None:
+        self.writer.add_message(channel_id, log_time=item.log_time, data=data, publish_time=item.publish_time,
+                                sequence=item.sequence)
+        self._pending += len(data) + 48  # + record header and its message-index entry
         pos = self.handle.tell()
         if pos != self._last_pos:
             self._last_pos, self._pending = pos, 0
 
-    def flush_if_due(self, now: float) -> None:
-        if self.unflushed and now - self.flushed_at >= FLUSH_PERIOD_S:
-            self.writer.flush()
-            self.unflushed, self.flushed_at = 0, now
-            self._last_pos, self._pending = self.handle.tell(), 0
+    def flush(self) -> None:
+        self.writer.flush()
+        self._last_pos, self._pending = self.handle.tell(), 0
 
     def size_estimate(self) -> int:
         """Bytes on disk, the open chunk uncompressed, and room for the summary `finish` appends.
@@ -139,11 +135,64 @@ class _OpenFile:
         self.handle.close()
 
 
-class McapSeries:
-    """Writes OUT.mcap, or OUT-000.mcap, OUT-001.mcap... when a size or duration limit is set."""
+class _OpenFile:
+    """One part of a recording: the view file and its exact twin, written and rotated together."""
 
-    def __init__(self, out: Path, limits: Limits, metadata: dict[str, str]) -> None:
+    def __init__(self, path: Path, chunk_size: int, metadata: dict[str, str],
+                 foxglove: FoxgloveViews | None) -> None:
+        self.path = path
+        self.view = _FileWriter(path, chunk_size, metadata)
+        self.exact = _FileWriter(exact_path(path), chunk_size, metadata)
+        self.foxglove = foxglove
+        self.first_log_time: int | None = None
+        self.messages = 0
+        self.unflushed = 0
+        self.flushed_at = time.monotonic()
+
+    def _extra(self, item: RecordItem, view: TopicView) -> None:
+        channel = self.view.channel(view.topic, item.path, item.robot_id, VIEW_FOXGLOVE, view.schema_name)
+        self.view.add(channel, item, view.data)
+
+    def add(self, item: RecordItem) -> None:
+        if self.first_log_time is None:
+            self.first_log_time = item.log_time
+            if self.foxglove is not None:  # each part opens on its own in Foxglove: each gets the court
+                for view in self.foxglove.preamble(item.robot_id, item.log_time):
+                    self._extra(item, view)
+        key = TOPICS[item.path].key(item.robot_id)
+        exact = self.exact.channel(key, item.path, item.robot_id, VIEW_MSGPACK, schema_name(TOPICS[item.path].message))
+        self.exact.add(exact, item, item.raw)
+        if item.json is not None:
+            channel = self.view.channel(key, item.path, item.robot_id, VIEW_JSON, item.json.schema_name)
+            self.view.add(channel, item, item.json.data)
+        for view in item.extras:
+            self._extra(item, view)
+        self.messages += 1
+        self.unflushed += 1
+
+    def flush_if_due(self, now: float) -> None:
+        if self.unflushed and now - self.flushed_at >= FLUSH_PERIOD_S:
+            self.view.flush()
+            self.exact.flush()
+            self.unflushed, self.flushed_at = 0, now
+
+    def size_estimate(self) -> int:
+        """The larger of the two files (a size limit applies to each file)."""
+        return max(self.view.size_estimate(), self.exact.size_estimate())
+
+    def close(self) -> None:
+        self.view.close()
+        self.exact.close()
+
+
+class McapSeries:
+    """Writes OUT.mcap (+ OUT.exact.mcap), or OUT-000.mcap, OUT-001.mcap... when a size or duration limit
+    is set. `foxglove` adds the Foxglove channels (court scene per file; items carry the others)."""
+
+    def __init__(self, out: Path, limits: Limits, metadata: dict[str, str],
+                 foxglove: FoxgloveViews | None = None) -> None:
         self.out = out
+        self.foxglove = foxglove
         self.limits = limits
         self.metadata = metadata
         self.files: list[Path] = []
@@ -159,7 +208,7 @@ class McapSeries:
             self._current = current = None
         if current is None:
             path = part_path(self.out, len(self.files)) if self.limits.rotating else self.out
-            current = self._current = _OpenFile(path, self._chunk_size, self.metadata)
+            current = self._current = _OpenFile(path, self._chunk_size, self.metadata, self.foxglove)
             self.files.append(path)
             log.info("recording to %s", path)
         current.add(item)
@@ -172,7 +221,8 @@ class McapSeries:
 
     def _full(self, current: _OpenFile, item: RecordItem) -> bool:
         limits = self.limits
-        incoming = len(item.raw) + (len(item.json.data) if item.json is not None else 0)
+        incoming = max(len(item.raw), (len(item.json.data) if item.json is not None else 0)
+                       + sum(len(v.data) for v in item.extras))
         if limits.max_bytes is not None and current.size_estimate() + incoming > limits.max_bytes:
             return True
         return (limits.max_seconds is not None and current.first_log_time is not None
@@ -231,9 +281,17 @@ def _messages(file: Path, handle: BinaryIO) -> Iterator[tuple[Any, Any, Any]]:
         log.warning("%s ends early (%s): %d messages recovered", file, exc, count)
 
 
+def source_file(file: Path, view: str) -> Path:
+    """The file that holds `view`: the exact twin of a view file for msgpack, when it is there."""
+    if view == VIEW_MSGPACK and not file.name.endswith(EXACT_SUFFIX) and exact_path(file).is_file():
+        return exact_path(file)
+    return file
+
+
 def read_series(files: Iterable[Path], view: str = VIEW_MSGPACK, only: set[str] | None = None) -> Iterator[Recorded]:
     """Messages of one view in log-time order, file after file; only topic paths in `only` when given."""
-    for file in files:
+    for given in files:
+        file = source_file(given, view)
         with file.open("rb") as handle:
             for _schema, channel, message in _messages(file, handle):
                 meta = channel.metadata
@@ -249,8 +307,8 @@ def read_series(files: Iterable[Path], view: str = VIEW_MSGPACK, only: set[str] 
 def recorded_channels(files: Iterable[Path], view: str = VIEW_MSGPACK) -> set[tuple[str, str]]:
     """(topic path, robot id) of every channel of one view, from the files' summaries (no message is read)."""
     found: set[tuple[str, str]] = set()
-    for file in files:
-        with file.open("rb") as handle:
+    for given in files:
+        with source_file(given, view).open("rb") as handle:
             summary = _summary_or_none(handle)
         for channel in (summary.channels.values() if summary else ()):
             meta = channel.metadata
@@ -277,4 +335,6 @@ def file_summary(file: Path) -> dict[str, object]:
 
 
 def dumps_summary(files: list[Path]) -> str:
-    return json.dumps([file_summary(f) for f in files], indent=2)
+    """The summaries of the view files and of their exact twins."""
+    every = [g for f in files for g in (f, exact_path(f)) if g == f or g.is_file()]
+    return json.dumps([file_summary(f) for f in every], indent=2)

@@ -21,8 +21,9 @@ from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.messages import SCHEMA_VERSION, Health
 from courtloc.common.services_table import TOPICS
 from courtloc.common.stats import RateLimitedLog
+from courtloc.recording.foxview import FoxgloveViews
 from courtloc.recording.jsonview import json_view
-from courtloc.recording.mcapfile import McapSeries, RecordItem
+from courtloc.recording.mcapfile import EXACT_SUFFIX, McapSeries, RecordItem
 
 log = logging.getLogger("courtloc.record")
 
@@ -145,20 +146,31 @@ class Recorder:
         with self._queued_lock:
             self._queued_bytes -= len(raw)
         try:
-            message = codec.decode(raw, TOPICS[path].message)
+            item = record_item(path, self.robot_id, raw, log_time, self.series.foxglove)
         except codec.DecodeError as exc:
             self.stats.undecodable[path] = self.stats.undecodable.get(path, 0) + 1
             self._rate_log.warning(f"undecodable:{path}", f"{path}: payload kept raw only ({exc.reason}: {exc.detail})")
-            message = None
-        header = getattr(message, "header", None)
-        self.series.write(RecordItem(
-            path=path, robot_id=self.robot_id, log_time=log_time,
-            publish_time=publish_time_of(message, log_time) if message is not None else log_time,
-            sequence=(header.seq & 0xFFFFFFFF) if header is not None else 0,
-            raw=raw, json=json_view(message, TOPICS[path].service) if message is not None else None))
+            item = RecordItem(path=path, robot_id=self.robot_id, log_time=log_time, publish_time=log_time,
+                              sequence=0, raw=raw, json=None)
+        self.series.write(item)
         self.stats.messages[path] = self.stats.messages.get(path, 0) + 1
+
+
+def record_item(path: str, robot_id: str, raw: bytes, log_time: int,
+                foxglove: FoxgloveViews | None = None) -> RecordItem:
+    """One bus payload as the recorder stores it: exact bytes, JSON view, Foxglove channels.
+
+    Raises codec.DecodeError when the payload does not decode (the caller keeps it raw only).
+    """
+    message = codec.decode(raw, TOPICS[path].message)
+    header = getattr(message, "header", None)
+    return RecordItem(
+        path=path, robot_id=robot_id, log_time=log_time, publish_time=publish_time_of(message, log_time),
+        sequence=(header.seq & 0xFFFFFFFF) if header is not None else 0, raw=raw,
+        json=json_view(message, TOPICS[path].service),
+        extras=tuple(foxglove.of(path, robot_id, message)) if foxglove is not None else ())
 
 
 def recording_metadata(robot_id: str, paths: list[str]) -> dict[str, str]:
     return {"robot_id": robot_id, "schema_version": str(SCHEMA_VERSION), "topics": ",".join(paths),
-            "raw_channels": "topic + '#msgpack', message_encoding msgpack: the exact bus payloads"}
+            "exact_payloads": f"<file stem>{EXACT_SUFFIX}, message_encoding msgpack: the exact bus payloads"}

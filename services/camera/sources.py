@@ -46,6 +46,10 @@ class DeviceSource:
 
     def open(self) -> None:
         dev = self.config.device
+        if not dev.isdigit() and not cv2.videoio_registry.hasBackend(cv2.CAP_GSTREAMER):
+            # pip's opencv-python has no GStreamer: say so instead of "cannot open" (docs/jetson.md)
+            raise SourceError("camera.device.device is a GStreamer pipeline, but this OpenCV has no GStreamer: use "
+                              "JetPack's OpenCV or a V4L2 index (docs/jetson.md)")
         cap = cv2.VideoCapture(int(dev)) if dev.isdigit() else cv2.VideoCapture(dev, cv2.CAP_GSTREAMER)
         if not cap.isOpened():
             raise SourceError(f"cannot open camera device {dev!r}")

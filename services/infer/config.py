@@ -18,14 +18,28 @@ def default_store_path() -> Path:
 Provider = Literal["tensorrt", "cuda", "cpu"]
 
 
+def providers_for(config: "InferConfig", input_kind: str) -> list[str]:
+    """The provider preference for a model of this input kind (short names, as in the config)."""
+    return list(config.accelerator_providers if input_kind in config.accelerate_kinds else config.providers)
+
+
 class InferConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     store: Path = Field(default_factory=default_store_path,
                         description="model repository: <store>/<name>/<version>/model.onnx")
+    # The bundled localizer's graph is a small int16 table lookup: TensorRT cannot take it and CUDA only
+    # adds copies, so models run on the CPU unless their input kind is listed in `accelerate_kinds`.
     providers: list[Provider] = Field(
+        default_factory=lambda: ["cpu"],
+        description="onnxruntime execution providers, in order of preference, for every model whose input kind "
+                    "is not in accelerate_kinds; those not installed are skipped")
+    accelerator_providers: list[Provider] = Field(
         default_factory=lambda: ["tensorrt", "cuda", "cpu"],
-        description="onnxruntime execution providers in order of preference; those not installed are skipped")
+        description="providers, in order of preference, for models whose input kind is in accelerate_kinds")
+    accelerate_kinds: list[Literal["dense_image", "sparse_hits", "scan_hits"]] = Field(
+        default_factory=lambda: ["dense_image"],
+        description="model input kinds that benefit from a GPU (the paper's dense image network)")
     threads: int = Field(default=1, ge=1, le=64, description="onnxruntime intra-op threads")
     # 200 ms admits the paper's dense graph (~70 ms per frame on a 2-core x86 here) so it stays servable
     # for comparison; its exact sparse graph (~4 ms) is the one to serve. Tighten it on the robot.

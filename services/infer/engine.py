@@ -20,7 +20,7 @@ from courtloc.common.signing import ModelSignatureError, signature_path, verify_
 from courtloc.localizer.manifest import Manifest, ManifestError
 from courtloc.localizer.model_file import ModelFile
 from courtloc.localizer.predictor import Predictor, load_predictor
-from courtloc.services.infer.config import InferConfig
+from courtloc.services.infer.config import InferConfig, providers_for
 from courtloc.services.infer.golden import GoldenSets
 from courtloc.services.infer.store import ModelRef, StoredModel
 from courtloc.world.court import Court
@@ -83,7 +83,8 @@ def load_model(stored: StoredModel, config: InferConfig, golden: GoldenSets | No
         except Exception as exc:
             raise ModelRefused(f"weights unreadable: {type(exc).__name__}: {exc}") from None
     try:
-        predictor = load_predictor(model_file, providers=available_providers(config.providers),
+        predictor = load_predictor(model_file,
+                                   providers=available_providers(providers_for(config, model_file.manifest.input.kind)),
                                    threads=config.threads)
     except Exception as exc:  # onnxruntime raises its own types for bad graphs and wrong shapes
         raise ModelRefused(f"cannot load: {type(exc).__name__}: {exc}") from None
