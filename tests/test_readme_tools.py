@@ -15,8 +15,11 @@ def parser_verbs(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()) ->
     groups = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
     if not groups:
         return {path}
-    return {verb for group in groups for name, child in group.choices.items()
-            for verb in parser_verbs(child, (*path, name))}
+    # a group with options of its own runs on its own too (`calibrate --data ...` beside `calibrate mount`)
+    own_options = [a for a in parser._actions if a.option_strings and a.dest != "help"]
+    itself = {path} if path and own_options else set()
+    return itself | {verb for group in groups for name, child in group.choices.items()
+                     for verb in parser_verbs(child, (*path, name))}
 
 
 def readme_verbs(text: str, groups: set[str]) -> set[tuple[str, ...]]:
@@ -24,7 +27,7 @@ def readme_verbs(text: str, groups: set[str]) -> set[tuple[str, ...]]:
     found = set()
     for cell in re.findall(r"^\| `courtloc ([^`]+)`", text, flags=re.M):
         words = cell.replace("\\|", "|").split()
-        if words[0] in groups:
+        if words[0] in groups and len(words) > 1 and not words[1].startswith("-"):
             found |= {(words[0], sub) for sub in words[1].split("|")}
         else:
             found.add((words[0],))
