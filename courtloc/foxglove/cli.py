@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         config = client_deployment(args)
-        views = FoxgloveViews.load(args.court or config.camera.sim.court, args.camera or config.camera.sim.camera)
+        views = FoxgloveViews.load(args.court or config.camera.sim.get("court", config.court), args.camera or config.camera.sim.get("camera"))
     except (ConfigError, ValueError) as exc:
         print(" ".join(str(exc).split()), file=sys.stderr)
         return 2

@@ -79,8 +79,8 @@ def run_bridge(args: argparse.Namespace) -> int:
         config = client_deployment(args)
         options = BridgeOptions(domain_id=args.domain, namespace=args.namespace, odometry_topic=args.odometry_topic,
                                 distro=args.distro)
-        camera = FoxgloveViews.load(args.court or config.camera.sim.court,
-                                    args.camera or config.camera.sim.camera).camera
+        camera = FoxgloveViews.load(args.court or config.camera.sim.get("court", config.court),
+                                    args.camera or config.camera.sim.get("camera")).camera
     except (ConfigError, ValueError) as exc:
         print(" ".join(str(exc).split()), file=sys.stderr)
         return 2
