@@ -52,7 +52,7 @@ def run_router(args: argparse.Namespace) -> int:
         return 2
     listen = args.listen or config.router.listen
     router_cfg = ZenohConfig(mode="router", connect=config.router.connect, listen=listen,
-                             config_file=config.zenoh.config_file)
+                             config_file=config.zenoh.config_file, shared_memory=config.zenoh.shared_memory)
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
