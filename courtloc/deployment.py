@@ -13,6 +13,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.config_loader import load_model, resolve_relative_paths
+from courtloc.common.realtime import RealtimeConfig
 from courtloc.common.runtime import Service
 from courtloc.common.security import with_identity
 from courtloc.common.services_table import SERVICES, check_robot_id
@@ -61,6 +62,8 @@ class DeploymentConfig(BaseModel):
     preprocess: PreprocessConfig = Field(default_factory=PreprocessConfig)
     infer: InferConfig = Field(default_factory=InferConfig)
     shooter_bridge: ShooterConfig = Field(default_factory=ShooterConfig)
+    realtime: RealtimeConfig = Field(default_factory=RealtimeConfig,
+                                     description="optional CPU affinity / SCHED_FIFO per stage, off by default")
 
     @model_validator(mode="after")
     def _one_court_by_default(self) -> "DeploymentConfig":

@@ -29,12 +29,17 @@ def run_stage(args: argparse.Namespace) -> int:
     from courtloc.common.config_loader import ConfigError
     from courtloc.deployment import build_stage, load_deployment
 
+    from courtloc.common.realtime import RealtimeError, apply_realtime
+
     try:
         config = load_deployment(args.config)
         stage = build_stage(args.service, config)
-    except (ConfigError, ValueError) as exc:
+        applied = apply_realtime(args.service, config.realtime)
+    except (ConfigError, ValueError, RealtimeError) as exc:
         print(exc, file=sys.stderr)
         return 2
+    if applied:
+        log.info("%s real-time settings: %s", args.service, ", ".join(applied))
     return stage.run()
 
 
