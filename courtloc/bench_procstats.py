@@ -1,6 +1,6 @@
 """CPU time and proportional memory (PSS) of the processes a bench started, read from /proc.
 
-A sampler thread notes, once a second, every descendant of this process that is a stage or a router
+A sampler thread notes, once a second, every child of this process that is a stage or a router
 (`courtloc run NAME` / `courtloc router`): CPU seconds (utime + stime) and PSS. CPU per frame is the
 difference between the first sample after the warm-up and the last one, over the frames in between.
 Linux only; elsewhere the report says why it is empty.
@@ -50,7 +50,7 @@ class ProcessSampler:
     def _loop(self) -> None:
         while not self._stop.wait(self.period_s):
             now = time.monotonic()
-            for role, pid in _roles(os.getpid()).items():
+            for role, pid in child_processes(os.getpid()).items():
                 sample = _read(pid, now)
                 if sample is None:
                     continue
@@ -79,31 +79,23 @@ class ProcessSampler:
                 "note": "" if roles else "no /proc samples (not Linux, or the run was shorter than the warm-up)"}
 
 
-def _roles(root: int) -> dict[str, int]:
-    """role -> pid of every descendant of `root` that runs `courtloc run NAME` or `courtloc router`."""
-    children: dict[int, list[int]] = {}
+def child_processes(parent: int) -> dict[str, int]:
+    """The launcher's children by role: 'router' or the stage name (from their command lines)."""
+    found: dict[str, int] = {}
     for entry in _PROC.iterdir():
         if not entry.name.isdigit():
             continue
         try:
-            ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
-        except (OSError, IndexError, ValueError):
-            continue
-        children.setdefault(ppid, []).append(int(entry.name))
-    found: dict[str, int] = {}
-    stack = list(children.get(root, []))
-    while stack:
-        pid = stack.pop()
-        stack.extend(children.get(pid, []))
-        try:
-            argv = (_PROC / str(pid) / "cmdline").read_bytes().split(b"\0")
+            stat = (entry / "stat").read_text()
+            argv = [a.decode() for a in (entry / "cmdline").read_bytes().split(b"\0") if a]
         except OSError:
+            continue  # exited meanwhile
+        if int(stat.rsplit(")", 1)[1].split()[1]) != parent:
             continue
-        args = [a.decode(errors="replace") for a in argv]
-        if "run" in args and args.index("run") + 1 < len(args):
-            found[args[args.index("run") + 1]] = pid
-        elif "router" in args:
-            found["router"] = pid
+        if "router" in argv:
+            found["router"] = int(entry.name)
+        elif "run" in argv and argv.index("run") + 1 < len(argv):
+            found[argv[argv.index("run") + 1]] = int(entry.name)
     return found
 
 

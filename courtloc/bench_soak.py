@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from courtloc.bench_procstats import child_processes
+
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,26 +28,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--minutes", type=float, default=10.0, help="how long to run")
     parser.add_argument("--window-s", type=float, default=10.0, help="one sample of RSS and latency per window")
     parser.add_argument("--json", type=Path, default=None, help="write the report here")
-
-
-def child_processes(parent: int) -> dict[str, int]:
-    """The launcher's children by role: 'router' or the stage name (from their command lines)."""
-    found: dict[str, int] = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-            argv = [a.decode() for a in (entry / "cmdline").read_bytes().split(b"\0") if a]
-        except OSError:
-            continue  # exited meanwhile
-        if int(stat.rsplit(")", 1)[1].split()[1]) != parent:
-            continue
-        if "router" in argv:
-            found["router"] = int(entry.name)
-        elif "run" in argv and argv.index("run") + 1 < len(argv):
-            found[argv[argv.index("run") + 1]] = int(entry.name)
-    return found
 
 
 def rss_mb(pid: int) -> float | None:
