@@ -26,10 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from courtloc.bench_procstats import ProcessSampler
     from courtloc.deployment import load_deployment
     from courtloc.launcher import run_up
-
-    from courtloc.bench_procstats import ProcessSampler
 
     config = load_deployment(args.config)
     if args.fps is not None:
@@ -105,8 +104,8 @@ def measure_relay(seconds: float, warmup_frames: int = 30, mode: str = "client",
         for hop in reversed(range(RELAY_HOPS)):  # consumers first
             hops.append(subprocess.Popen(
                 [sys.executable, "-m", "courtloc.bench_relay", "--hop", str(hop), "--port", str(port),
-                 "--seconds", str(seconds), "--mode", mode, "--fps", str(fps)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                stderr=subprocess.DEVNULL, text=True))
+                 "--seconds", str(seconds), "--mode", mode, "--fps", str(fps)],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True))
         for proc in hops:
             proc.stdout.readline()  # "ready": connected
         for proc in hops:
