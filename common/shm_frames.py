@@ -81,8 +81,12 @@ class ShmFramePublisher:
         self._policy = GarbageCollect(JustAlloc())
         self.stats = ShmStats()
 
-    def put(self, meta: Frame, data: bytes | bytearray) -> None:
-        """Publish `meta` (its own `data` ignored) carrying `data` as the frame bytes."""
+    @property
+    def enabled(self) -> bool:
+        return self._provider is not None
+
+    def put(self, meta: Frame, data: bytes | bytearray) -> bool:
+        """Publish `meta` (its own `data` ignored) carrying `data` as the frame bytes; False if sent as bytes."""
         prefix = frame_prefix(meta, len(data))
         if self._provider is not None:
             try:
@@ -94,9 +98,10 @@ class ShmFramePublisher:
                 buffer[len(prefix):len(prefix) + len(data)] = data
                 self._publisher.put(zenoh.ZBytes(buffer))
                 self.stats.in_shm += 1
-                return
+                return True
         self.stats.fallback_bytes += 1
         self._publisher.put(prefix + data)
+        return False
 
 
 @dataclass

@@ -127,6 +127,7 @@ def test_a_consumer_holding_frames_cannot_stall_the_camera(tmp_path: Path) -> No
         exhausted = client.wait_for("camera/health", lambda h: h.detail.get("frames_as_bytes", 0) >= 5, timeout=30)
         later = client.wait_for("camera/health", lambda h: h.frames_out > exhausted.frames_out + 5, timeout=30)
         assert later.detail["frames_as_bytes"] > exhausted.detail["frames_as_bytes"], "still publishing, as bytes"
+        assert "shared-memory pool" in later.last_error
         in_shm_while_held = later.detail["frames_in_shm"]
         holding.clear()
         with lock:

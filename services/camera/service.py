@@ -94,7 +94,9 @@ class CameraService(Service):
         meta, data = encode_frame(capture.frame, header, self.config.encoding, self.config.jpeg_quality,
                                   self._staging)
         assert self._frames is not None
-        self._frames.put(meta, data)
+        if not self._frames.put(meta, data) and self._frames.enabled:
+            self.record_error("shm_pool", f"shared-memory pool ({self.config.shm_pool_mb:g} MB) held by subscribers: "
+                                          "frame sent as bytes")
         self.count_published("camera/frame", meta)
         if capture.truth is not None:
             x, y, yaw = capture.truth
