@@ -99,13 +99,23 @@ def child_processes(parent: int) -> dict[str, int]:
     return found
 
 
-def _read(pid: int, now: float) -> _Sample | None:
+def pss_kb(pid: int) -> int | None:
+    """Proportional set size: a page shared by n processes (libraries, shared-memory frames) counts 1/n."""
     try:
-        fields = (_PROC / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()
         rollup = (_PROC / str(pid) / "smaps_rollup").read_text()
     except OSError:
         return None
+    return next((int(line.split()[1]) for line in rollup.splitlines() if line.startswith("Pss:")), None)
+
+
+def _read(pid: int, now: float) -> _Sample | None:
+    try:
+        fields = (_PROC / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    pss = pss_kb(pid)
+    if pss is None:
+        return None
     # fields[0] is the state (field 3 of stat): utime and stime are stat fields 14 and 15
     cpu_s = (int(fields[11]) + int(fields[12])) / _TICKS
-    pss_kb = next((int(line.split()[1]) for line in rollup.splitlines() if line.startswith("Pss:")), 0)
-    return _Sample(pid, now, cpu_s, pss_kb)
+    return _Sample(pid, now, cpu_s, pss)

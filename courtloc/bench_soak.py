@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from courtloc.bench_procstats import child_processes
+from courtloc.bench_procstats import child_processes, pss_kb
 
 
 
@@ -76,7 +76,9 @@ def run(args: argparse.Namespace) -> int:
             procs = {"launcher": up.pid, **child_processes(up.pid)}
             for role, pid in procs.items():
                 seen_pids.setdefault(role, set()).add(pid)
+            pss = {r: pss_kb(p) for r, p in procs.items()}
             window = {"t_s": round(elapsed, 1), "rss_mb": {r: rss_mb(p) for r, p in procs.items()},
+                      "pss_mb": {r: round(v / 1024, 1) if v is not None else None for r, v in pss.items()},
                       "e2e_n": len(latencies), "e2e_p50_ms": _percentile(latencies, 50),
                       "e2e_p99_ms": _percentile(latencies, 99)}
             windows.append(window)
@@ -112,6 +114,9 @@ def summarise(windows: list[dict], seen_pids: dict[str, set[int]], e2e_topic: st
             "growth_mb": (present[-1] - present[0]) if present else None,
             "slope_mb_per_h": _slope_per_hour(times, series),
             "restarts": max(0, len(seen_pids.get(role, ())) - 1),
+            # RSS counts every shared page (libraries, shared-memory frames) in full in every process
+            "last_pss_mb": next((w["pss_mb"].get(role) for w in reversed(steady) if w.get("pss_mb", {}).get(role)),
+                                None),
         }
     return {
         "windows": len(windows), "duration_s": windows[-1]["t_s"] if windows else 0.0, "e2e_topic": e2e_topic,
