@@ -12,7 +12,6 @@ full (subscribers still holding old frames) goes out as plain bytes and is count
 from __future__ import annotations
 
 import io
-import logging
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,8 +22,6 @@ from zenoh.shm import GarbageCollect, JustAlloc, ShmProvider
 
 from courtloc.common import codec
 from courtloc.common.messages import Frame, Header
-
-log = logging.getLogger(__name__)
 
 _BIN_TAGS = {0xC4: 1, 0xC5: 2, 0xC6: 4}  # msgpack bin8/16/32 -> bytes of the length that follow
 
@@ -131,7 +128,7 @@ def _split(raw: bytes) -> tuple[bytes, memoryview] | None:
         if index != n_fields - 1:
             return None
         at = unpacker.tell()
-    except Exception:  # anything msgpack dislikes goes through the codec, which names the reason
+    except Exception:  # noqa: BLE001 - anything msgpack dislikes goes through the codec, which names the reason
         return None
     size_len = _BIN_TAGS.get(raw[at]) if at < len(raw) else None
     if size_len is None:

@@ -36,7 +36,7 @@ class ProcessSampler:
     _thread: threading.Thread | None = None
     _started: float = 0.0
 
-    def start(self) -> "ProcessSampler":
+    def start(self) -> ProcessSampler:
         self._started = time.monotonic()
         self._thread = threading.Thread(target=self._loop, name="proc-sampler", daemon=True)
         self._thread.start()
