@@ -66,13 +66,13 @@ def run(args: argparse.Namespace) -> int:
     started = time.monotonic()
     windows: list[dict] = []
     seen_pids: dict[str, set[int]] = {}
-    taken = 0
     try:
         while not stop.wait(args.window_s) and up.poll() is None:
             elapsed = time.monotonic() - started
             with watcher._lock:  # noqa: SLF001 - the watcher's own lock guards its state
-                latencies = list(watcher.state.e2e_ns[taken:])
-                taken = len(watcher.state.e2e_ns)
+                # a window's latencies are taken out: the watcher's bounded deque never fills over hours
+                latencies = list(watcher.state.e2e_ns)
+                watcher.state.e2e_ns.clear()
             procs = {"launcher": up.pid, **child_processes(up.pid)}
             for role, pid in procs.items():
                 seen_pids.setdefault(role, set()).add(pid)
