@@ -47,13 +47,16 @@ def frame_prefix(meta: Frame, data_len: int) -> bytes:
 
 class PixelStaging:
     """A reused bytes-like image buffer: zenoh-python writes provider buffers from bytes/bytearray only,
-    so pixels land here first (no allocation per frame) and then once in shared memory."""
+    so pixels land here first (no allocation per frame; a device or video source decodes straight into
+    `view`) and then once in shared memory."""
 
     def __init__(self) -> None:
         self._buffer = bytearray()
         self.view: np.ndarray = np.empty(0, np.uint8)
 
     def fill(self, image: np.ndarray) -> bytearray:
+        if image is self.view:  # the source decoded straight into this buffer
+            return self._buffer
         if self.view.shape != image.shape:
             self._buffer = bytearray(image.nbytes)
             self.view = np.frombuffer(self._buffer, np.uint8).reshape(image.shape)

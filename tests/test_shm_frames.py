@@ -141,3 +141,53 @@ def test_a_consumer_holding_frames_cannot_stall_the_camera(tmp_path: Path) -> No
         client.close()
         assert camera.stop() == 0, camera.output()
         router.stop()
+
+
+def _video(path: Path, n: int = 5) -> Path:
+    import cv2
+
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 10, (64, 48))
+    for i in range(n):
+        writer.write(np.full((48, 64, 3), 40 * i, np.uint8))
+    writer.release()
+    return path
+
+
+def test_a_video_source_decodes_straight_into_the_staging_buffer(tmp_path: Path) -> None:
+    from courtloc.services.camera.config import FileSourceConfig
+    from courtloc.services.camera.sources import FileSource
+
+    source = FileSource(FileSourceConfig(path=_video(tmp_path / "v.avi")))
+    source.open()
+    try:
+        staging = PixelStaging()
+        buffer = staging.fill(source.read().frame)
+        second = source.read(staging.view)
+        assert second.frame is staging.view, "decoded in place"
+        assert staging.fill(second.frame) is buffer
+        assert abs(int(np.frombuffer(buffer, np.uint8).mean()) - 40) <= 3, "the buffer holds the second frame"
+    finally:
+        source.close()
+
+
+@pytest.mark.integration
+def test_video_frames_published_from_the_staging_buffer_are_each_their_own(tmp_path: Path) -> None:
+    port = free_port()
+    router = start_router(port)
+    video = _video(tmp_path / "v.avi")
+    config = write_config(tmp_path / "cam.toml", port, f'[camera]\nsource = "file"\nfps = 30\n'
+                                                       f'[camera.file]\npath = "{video}"\n')
+    client = BusClient(port)
+    client.subscribe("camera/frame")
+    camera = start_stage("camera", config)
+    try:
+        first = client.wait_for("camera/frame")
+        for message in client.messages("camera/frame"):
+            if message.header.seq >= first.header.seq + 12:
+                break
+            level = int(np.frombuffer(message.data, np.uint8).mean())
+            assert abs(level - 40 * (message.header.seq % 5)) <= 3, "each frame shows its own picture"
+    finally:
+        client.close()
+        assert camera.stop() == 0, camera.output()
+        router.stop()

@@ -72,7 +72,8 @@ class CameraService(Service):
                 self._open = True
                 self._backoff = self.config.reopen_backoff_s
                 self.log.info("camera source %s open", self.config.source)
-            capture = self.source.read()
+            # After the first frame a decoding source writes into the staging buffer itself: no copy.
+            capture = self.source.read(self._staging.view if self._staging.view.size else None)
         except SourceError as exc:
             self.source_errors += 1
             self.record_error("source", f"camera source: {exc}; reopening in {self._backoff:.1f} s")
