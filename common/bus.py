@@ -44,6 +44,9 @@ class ZenohConfig(BaseModel):
     multicast_scouting: bool = False
     open_retry_s: float = Field(default=0.5, gt=0, description="first back-off while no router answers")
     open_retry_max_s: float = Field(default=2.0, gt=0)
+    shared_memory: bool = Field(
+        default=True, description="zenoh shared memory on this session: large payloads between processes of "
+        "one host travel as a descriptor; a link that cannot share memory (another host) carries bytes")
     security: SecurityConfig | None = Field(
         default=None, description="mTLS + password from a `courtloc secure init` bundle (tls/ endpoints)")
 
@@ -63,6 +66,8 @@ def build_zenoh_config(cfg: ZenohConfig) -> zenoh.Config:
     zcfg.insert_json5("connect/retry", json.dumps({
         "period_init_ms": int(cfg.open_retry_s * 1000), "period_max_ms": int(cfg.open_retry_max_s * 1000),
         "period_increase_factor": 2.0}))
+    # Every session on the path must agree, the router included, or the link falls back to bytes.
+    zcfg.insert_json5("transport/shared_memory/enabled", json.dumps(cfg.shared_memory))
     if cfg.security is not None and cfg.mode != "router":
         for path, value in client_settings(cfg.security).items():
             zcfg.insert_json5(path, json.dumps(value))

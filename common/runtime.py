@@ -81,9 +81,20 @@ class Service:
     def health_detail(self) -> dict[str, float | int | str]:
         return {}
 
+    def decode_input(self, topic: Topic, payload: Any) -> Any:
+        """Payload -> message (worker thread); a stage that reads only part of a big message overrides it."""
+        return codec.decode(bytes(payload), topic.message)
+
     # ---- helpers for subclasses -------------------------------------------------------------
     def publish(self, topic_path: str, message: BaseModel) -> None:
         self._publishers[topic_path].put(codec.encode(message))
+        self.count_published(topic_path, message)
+
+    def publisher(self, topic_path: str) -> zenoh.Publisher:
+        """The declared publisher of an output, for a stage that writes its payload itself (shared memory)."""
+        return self._publishers[topic_path]
+
+    def count_published(self, topic_path: str, message: BaseModel) -> None:
         self.published[topic_path] = self.published.get(topic_path, 0) + 1
         if topic_path == self.spec.outputs[0]:
             self.frames_out += 1
@@ -190,10 +201,12 @@ class Service:
             topic = TOPICS[delivery.topic_path]
             try:
                 codec.check_size(len(delivery.payload), topic.max_bytes)  # before copying it
-                message = codec.decode(bytes(delivery.payload), topic.message)
+                message = self.decode_input(topic, delivery.payload)
             except codec.DecodeError as exc:
                 self.reject(delivery.topic_path, exc.reason, exc.detail)
                 continue
+            finally:
+                delivery.payload = None  # decoding copied what it needs: a shared-memory buffer goes back now
             if getattr(message, "header", None) is not None and message.header.robot_id != self.robot_id:
                 self.reject(delivery.topic_path, "robot_id", f"message for {message.header.robot_id!r}")
                 continue

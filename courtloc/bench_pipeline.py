@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from courtloc.bench_procstats import ProcessSampler
 from courtloc.cliargs import add_json_argument, positive_float
 from courtloc.common.services_table import RELAY_HOPS
 from courtloc.launcher import run_up
@@ -28,13 +29,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_json_argument(parser, "the report")
     parser.add_argument("--relay", action="store_true",
                         help="also measure the transport baseline in the same run: a raw frame handed along "
-                             "4 processes doing trivial work, and report the ratio")
+                             "4 processes doing trivial work (in shared memory, as the chain moves frames), "
+                             "and report the ratio")
+    parser.add_argument("--fps", type=positive_float, default=None,
+                        help="camera rate (and the relay's), overriding the deployment's [camera] fps")
 
 
 def run(args: argparse.Namespace) -> int:
     config = load_deployment(args.config)
-    summary = run_up(config, args.seconds, None, threading.Event(), status_stream=sys.stderr)
+    if args.fps is not None:
+        config = config.model_copy(update={"camera": config.camera.model_copy(update={"fps": args.fps})})
+    fps = config.camera.fps
+    sampler = ProcessSampler().start()
+    try:
+        summary = run_up(config, args.seconds, None, threading.Event(), status_stream=sys.stderr)
+    finally:
+        sampler.stop()
     e2e = summary["e2e_latency_ms"]
+    processes = sampler.report(fps)
+    robot_side = [role for role in processes["processes"] if role != "camera"]
     report = {
         "services": summary["services"],
         "seconds": summary["duration_s"],
@@ -42,6 +55,12 @@ def run(args: argparse.Namespace) -> int:
         "e2e_latency_ms_p50": e2e["p50"],
         "e2e_latency_ms_p99": e2e["p99"],
         "e2e_latency_ms_max": e2e["max"],
+        "fps": fps,
+        # No backlog: the last tenth of the run as fast as the first.
+        "e2e_latency_ms_p50_first_10pct": e2e["p50_first_10pct"],
+        "e2e_latency_ms_p50_last_10pct": e2e["p50_last_10pct"],
+        "frames_published": summary["stages"].get("camera", {}).get("frames_out", 0),
+        "solutions_published": summary["messages"].get(e2e["topic"], 0),
         # The last stage's own output rate (its latest health): start-up time is not in it.
         "throughput_hz": summary["stages"].get(e2e["topic"].split("/")[0], {}).get("rate_out_hz", 0.0),
         "valid_fraction": (summary["valid_messages"].get(e2e["topic"], 0)
@@ -50,9 +69,15 @@ def run(args: argparse.Namespace) -> int:
                    for name, s in summary["stages"].items()},
         "drops": summary["drops"],
         "restarts": summary["restarts"],
+        # CPU from each process's utime + stime between samples; memory as PSS (shared pages split fairly).
+        "processes": processes["processes"],
+        "robot_side_pss_mb": round(sum(processes["processes"][r]["pss_mb"] for r in robot_side), 1),
+        "robot_side_processes": robot_side,
     }
+    if processes["note"]:
+        report["processes_note"] = processes["note"]
     if args.relay:
-        relay = measure_relay(args.seconds)
+        relay = measure_relay(args.seconds, fps=fps)
         report["relay_baseline"] = relay
         if relay["e2e_latency_ms_p50"] and report["e2e_latency_ms_p50"]:
             report["chain_over_relay_p50"] = report["e2e_latency_ms_p50"] / relay["e2e_latency_ms_p50"]
@@ -63,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def measure_relay(seconds: float, warmup_frames: int = 30, mode: str = "client") -> dict[str, float | int | None]:
+def measure_relay(seconds: float, warmup_frames: int = 30, mode: str = "client",
+                  fps: float = 30.0) -> dict[str, float | int | None]:
     """Router + the relay hops as processes (see courtloc/bench_relay.py); latency at the last hop."""
 
 
@@ -80,8 +106,8 @@ def measure_relay(seconds: float, warmup_frames: int = 30, mode: str = "client")
         for hop in reversed(range(RELAY_HOPS)):  # consumers first
             hops.append(subprocess.Popen(
                 [sys.executable, "-m", "courtloc.bench_relay", "--hop", str(hop), "--port", str(port),
-                 "--seconds", str(seconds), "--mode", mode], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                stderr=subprocess.DEVNULL, text=True))
+                 "--seconds", str(seconds), "--mode", mode, "--fps", str(fps)],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True))
         for proc in hops:
             proc.stdout.readline()  # "ready": connected
         for proc in hops:
@@ -98,7 +124,8 @@ def measure_relay(seconds: float, warmup_frames: int = 30, mode: str = "client")
                 proc.terminate()
                 proc.wait(timeout=10)
     return {
-        "hops": RELAY_HOPS, "mode": mode, "frame_bytes": 640 * 480 * 3, "n": int(spans.size),
+        "hops": RELAY_HOPS, "mode": mode, "transport": "zenoh shared memory", "fps": fps,
+        "frame_bytes": 640 * 480 * 3, "n": int(spans.size),
         "e2e_latency_ms_p50": float(np.percentile(spans, 50)) if spans.size else None,
         "e2e_latency_ms_p99": float(np.percentile(spans, 99)) if spans.size else None,
     }

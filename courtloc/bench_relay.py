@@ -1,7 +1,9 @@
 """The transport baseline: one 640x480 BGR frame handed along RELAY_HOPS processes doing trivial work.
 
 Each hop uses the same parts as a stage (session helper, table QoS, latest-only inbox, a worker thread,
-the msgpack codec, header stamps), so the difference to the real chain is the real work.
+header stamps) and moves the frame the way the chain does: the source writes it once into its shared-memory
+pool like the camera, every hop copies the pixels out once like preprocess and writes them into its own
+pool to pass them on. So the difference to the real chain is the real work.
 Run as `python -m courtloc.bench_relay --hop I --port P --seconds S`; `courtloc bench pipeline --relay`
 starts a router and the hops and compares them with the real chain in the same run.
 """
@@ -16,26 +18,29 @@ import time
 import numpy as np
 import zenoh
 
-from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, declare_publisher, open_session
 from courtloc.common.inbox import LatestInbox
 from courtloc.common.messages import Frame, Header
 from courtloc.common.services_table import RELAY_HOPS, RELAY_TOPICS
+from courtloc.common.shm_frames import PixelStaging, ShmFramePublisher, decode_frame_payload
 
 ROBOT = "bench"
 WIDTH, HEIGHT = 640, 480
+POOL_BYTES = 16 * 2**20  # the camera's default pool
 
 
 def _source(session: zenoh.Session, seconds: float, fps: float) -> None:
-    publisher = declare_publisher(session, RELAY_TOPICS[0], ROBOT)
-    pixels = np.random.default_rng(0).integers(0, 255, (HEIGHT, WIDTH, 3), np.uint8).tobytes()
+    publisher = ShmFramePublisher(declare_publisher(session, RELAY_TOPICS[0], ROBOT), POOL_BYTES)
+    image = np.random.default_rng(0).integers(0, 255, (HEIGHT, WIDTH, 3), np.uint8)
+    staging = PixelStaging()
     period, deadline, seq = 1.0 / fps, time.monotonic(), 0
     end = deadline + seconds
     stop = threading.Event()
     while deadline < end:
         header = Header.now(ROBOT, seq, "relay0")
         header.valid = True
-        publisher.put(codec.encode(Frame(header=header, width=WIDTH, height=HEIGHT, encoding="bgr8", data=pixels)))
+        image[0, 0, 0] = seq % 256  # frames differ, as a camera's do
+        publisher.put(Frame(header=header, width=WIDTH, height=HEIGHT, encoding="bgr8", data=b""), staging.fill(image))
         seq += 1
         deadline += period
         stop.wait(max(0.0, deadline - time.monotonic()))
@@ -47,19 +52,21 @@ def _hop(session: zenoh.Session, hop: int, seconds: float) -> list[float]:
     inbox = LatestInbox()
     subscriber = session.declare_subscriber(RELAY_TOPICS[hop - 1].key(ROBOT),
                                             lambda sample: inbox.put("frame", sample.payload))
-    publisher = None if last else declare_publisher(session, RELAY_TOPICS[hop], ROBOT)
+    publisher = None if last else ShmFramePublisher(declare_publisher(session, RELAY_TOPICS[hop], ROBOT), POOL_BYTES)
     spans_ms: list[float] = []
     end = time.monotonic() + seconds
     while time.monotonic() < end:
         delivery = inbox.take(timeout=0.5)
         if delivery is None:
             continue
-        frame = codec.decode(bytes(delivery.payload), Frame)
-        header = frame.header.forwarded(f"relay{hop}", valid=True)
+        received = decode_frame_payload(delivery.payload)
+        delivery.payload = None  # copied out: the buffer goes back to its pool
+        header = received.header.forwarded(f"relay{hop}", valid=True)
         if last:
             spans_ms.append(header.span_ns() / 1e6)
         else:
-            publisher.put(codec.encode(frame.model_copy(update={"header": header})))
+            # zenoh-python writes provider buffers from bytes only: the pass-on costs one more copy
+            publisher.put(received.message.model_copy(update={"header": header}), bytes(received.pixels))
     subscriber.undeclare()
     return spans_ms
 

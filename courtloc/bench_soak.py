@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from courtloc.bench_procstats import child_processes, pss_kb
 from courtloc.cliargs import add_json_argument, positive_float
 from courtloc.common.signals import stop_on_signals
 from courtloc.services.deployment import load_deployment
@@ -29,26 +30,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--minutes", type=positive_float, default=10.0, help="how long to run")
     parser.add_argument("--window-s", type=positive_float, default=10.0, help="one sample of RSS and latency per window")
     add_json_argument(parser, "the report")
-
-
-def child_processes(parent: int) -> dict[str, int]:
-    """The launcher's children by role: 'router' or the stage name (from their command lines)."""
-    found: dict[str, int] = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-            argv = [a.decode() for a in (entry / "cmdline").read_bytes().split(b"\0") if a]
-        except OSError:
-            continue  # exited meanwhile
-        if int(stat.rsplit(")", 1)[1].split()[1]) != parent:
-            continue
-        if "router" in argv:
-            found["router"] = int(entry.name)
-        elif "run" in argv and argv.index("run") + 1 < len(argv):
-            found[argv[argv.index("run") + 1]] = int(entry.name)
-    return found
 
 
 def rss_mb(pid: int) -> float | None:
@@ -83,17 +64,19 @@ def run(args: argparse.Namespace) -> int:
     started = time.monotonic()
     windows: list[dict] = []
     seen_pids: dict[str, set[int]] = {}
-    taken = 0
     try:
         while not stop.wait(args.window_s) and up.poll() is None:
             elapsed = time.monotonic() - started
             with watcher._lock:  # noqa: SLF001 - the watcher's own lock guards its state
-                latencies = list(watcher.state.e2e_ns[taken:])
-                taken = len(watcher.state.e2e_ns)
+                # a window's latencies are taken out: the watcher's bounded deque never fills over hours
+                latencies = list(watcher.state.e2e_ns)
+                watcher.state.e2e_ns.clear()
             procs = {"launcher": up.pid, **child_processes(up.pid)}
             for role, pid in procs.items():
                 seen_pids.setdefault(role, set()).add(pid)
+            pss = {r: pss_kb(p) for r, p in procs.items()}
             window = {"t_s": round(elapsed, 1), "rss_mb": {r: rss_mb(p) for r, p in procs.items()},
+                      "pss_mb": {r: round(v / 1024, 1) if v is not None else None for r, v in pss.items()},
                       "e2e_n": len(latencies), "e2e_p50_ms": _percentile(latencies, 50),
                       "e2e_p99_ms": _percentile(latencies, 99)}
             windows.append(window)
@@ -129,6 +112,9 @@ def summarise(windows: list[dict], seen_pids: dict[str, set[int]], e2e_topic: st
             "growth_mb": (present[-1] - present[0]) if present else None,
             "slope_mb_per_h": _slope_per_hour(times, series),
             "restarts": max(0, len(seen_pids.get(role, ())) - 1),
+            # RSS counts every shared page (libraries, shared-memory frames) in full in every process
+            "last_pss_mb": next((w["pss_mb"].get(role) for w in reversed(steady) if w.get("pss_mb", {}).get(role)),
+                                None),
         }
     return {
         "windows": len(windows), "duration_s": windows[-1]["t_s"] if windows else 0.0, "e2e_topic": e2e_topic,

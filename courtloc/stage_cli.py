@@ -64,7 +64,7 @@ def run_router(args: argparse.Namespace) -> int:
               "(courtloc secure init) or insecure = true in the deployment file", file=sys.stderr)
         return 2
     router_cfg = ZenohConfig(mode="router", connect=config.router.connect, listen=listen,
-                             config_file=config.zenoh.config_file)
+                             config_file=config.zenoh.config_file, shared_memory=config.zenoh.shared_memory)
     stop = stop_on_signals()
     try:
         zcfg = build_zenoh_config(router_cfg)

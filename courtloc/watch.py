@@ -217,6 +217,9 @@ class BusWatcher:
                     "p50": float(np.percentile(e2e, 50)) if e2e.size else None,
                     "p99": float(np.percentile(e2e, 99)) if e2e.size else None,
                     "max": state.e2e_max_ns / 1e6 if e2e.size else None,
+                    # a backlog shows as the last tenth of the run slower than the first
+                    "p50_first_10pct": float(np.median(e2e[:max(e2e.size // 10, 1)])) if e2e.size else None,
+                    "p50_last_10pct": float(np.median(e2e[-max(e2e.size // 10, 1):])) if e2e.size else None,
                 },
                 "pose_error_m": {
                     "n": int(errors.size),

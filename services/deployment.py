@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from courtloc.common.bus import RouterUnreachable, ZenohConfig, wait_for_router
 from courtloc.common.config_loader import ConfigError, load_model, resolve_relative_paths
 from courtloc.common.exposure import insecure_exposure, is_loopback, warn_while_insecure
+from courtloc.common.realtime import RealtimeConfig, RealtimeError, apply_realtime
 from courtloc.common.runtime import Service
 from courtloc.common.security import with_identity
 from courtloc.common.services_table import SERVICES, check_robot_id
@@ -68,6 +69,8 @@ class DeploymentConfig(BaseModel):
     preprocess: PreprocessConfig = Field(default_factory=PreprocessConfig)
     infer: InferConfig = Field(default_factory=InferConfig)
     shooter_bridge: ShooterConfig = Field(default_factory=ShooterConfig)
+    realtime: RealtimeConfig = Field(default_factory=RealtimeConfig,
+                                     description="optional CPU affinity / SCHED_FIFO per stage, off by default")
     insecure: bool = Field(default=False, description="allow listening beyond loopback without the security "
                            "bundle (a warning is logged every minute while it does)")
 
@@ -128,11 +131,14 @@ def stage_main(stage_class: type[Service], argv: Sequence[str] | None = None) ->
     zenoh_config = config.zenoh.model_copy(update={"security": with_identity(config.zenoh.security, name)})
     try:
         stage = stage_class(config.robot_id, zenoh_config, getattr(config, name))  # a bad input file stops it here
+        applied = apply_realtime(name, config.realtime)
         if zenoh_config.mode == "client":  # a peer opens without a router; a client waits for one
             wait_for_router(zenoh_config, args.timeout)
-    except (ValueError, OSError) as exc:  # ConfigError, a table or credential file, no router: one line
+    except (ValueError, OSError, RealtimeError) as exc:  # ConfigError, a table or credential file, no router
         print(f"{name}: {exc}", file=sys.stderr)
         return 1 if isinstance(exc, RouterUnreachable) else 2
+    if applied:
+        logging.getLogger(f"courtloc.{name}").info("real-time settings: %s", ", ".join(applied))
     warn_while_insecure(insecure_exposure(config.zenoh.listen, config.zenoh.security is not None),
                         stage.stop_event, logging.getLogger(f"courtloc.{name}"))
     return stage.run()

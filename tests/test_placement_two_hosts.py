@@ -29,7 +29,9 @@ def _court_images(folder: Path, n: int = 4) -> Path:
 
 def _start_router_joining(tmp_path: Path, port: int, upstream: int) -> Proc:
     config = tmp_path / "router_b.toml"
-    config.write_text(f'[router]\nlisten = ["{endpoint(port)}"]\nconnect = ["{endpoint(upstream)}"]\n')
+    # No shared memory on the "laptop": on one machine, that is what makes the hop behave like Wi-Fi.
+    config.write_text(f'[zenoh]\nshared_memory = false\n'
+                      f'[router]\nlisten = ["{endpoint(port)}"]\nconnect = ["{endpoint(upstream)}"]\n')
     router = Proc([*PYTHON, "router", "--config", str(config)]).start()
     router.wait_line("router listening")
     return router
@@ -49,10 +51,12 @@ encoding = "jpeg"
 path = "{folder}"
 pattern = "*.png"
 """)
-    laptop_cfg = write_config(tmp_path / "laptop.toml", port_laptop)
+    laptop_cfg = write_config(tmp_path / "laptop.toml", port_laptop, zenoh_extra="shared_memory = false")
     on_laptop, on_robot = BusClient(port_laptop), BusClient(port_robot)
     on_laptop.subscribe("camera/frame")
     on_robot.subscribe("preprocess/edges")
+    on_robot.subscribe("preprocess/health")
+    on_robot.subscribe("camera/health")
     camera = start_stage("camera", camera_cfg)
     preprocess = start_stage("preprocess", laptop_cfg)
     try:
@@ -64,6 +68,11 @@ pattern = "*.png"
         assert edges.n_hits > 0 and (edges.width, edges.height) == (640, 480)
         later = on_robot.wait_for("preprocess/edges", lambda m: m.header.seq > edges.header.seq + 3, timeout=30)
         assert later.header.valid
+        # The camera wrote its frames into shared memory; across the hop the same topic arrived as bytes.
+        health = on_robot.wait_for("preprocess/health", lambda h: h.detail.get("frames_via_bytes", 0) > 0)
+        assert health.detail["frames_via_shm"] == 0
+        camera_health = on_robot.wait_for("camera/health", lambda h: h.detail.get("frames_in_shm", 0) > 0)
+        assert camera_health.detail["frames_as_bytes"] == 0
     finally:
         on_laptop.close()
         on_robot.close()

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from buskit import PYTHON, BusClient, Proc, endpoint, folder_camera_toml, free_port, write_line_frames
 
-from courtloc.bench_soak import child_processes
+from courtloc.bench_procstats import child_processes
 from courtloc.common.bus import ZenohConfig, open_session
 
 pytestmark = pytest.mark.integration

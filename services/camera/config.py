@@ -36,6 +36,9 @@ class CameraConfig(_Section):
     encoding: Literal["bgr8", "jpeg"] = Field(
         default="bgr8", description="bgr8 on the robot; jpeg when the next hop crosses Wi-Fi")
     jpeg_quality: int = Field(default=85, ge=10, le=100)
+    shm_pool_mb: float = Field(
+        default=16.0, ge=2.0, le=512.0, description="shared-memory pool for frames (a 640x480 BGR frame is 0.9 MB); "
+        "when subscribers hold it all, frames go out as plain bytes and are counted")
     reopen_backoff_s: float = Field(default=0.5, gt=0)
     reopen_backoff_max_s: float = Field(default=5.0, gt=0)
     device: DeviceSourceConfig = Field(default_factory=DeviceSourceConfig)

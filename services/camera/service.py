@@ -9,20 +9,23 @@ import numpy as np
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.messages import Frame, GroundTruth, Header
 from courtloc.common.runtime import Service
+from courtloc.common.shm_frames import PixelStaging, ShmFramePublisher
 from courtloc.services.camera.config import CameraConfig
 from courtloc.services.camera.sources import Capture, FrameSource, SourceError, make_source
 
 
-def encode_frame(frame: np.ndarray, header: Header, encoding: str, jpeg_quality: int) -> Frame:
+def encode_frame(frame: np.ndarray, header: Header, encoding: str, jpeg_quality: int,
+                 staging: PixelStaging) -> tuple[Frame, bytes | bytearray]:
+    """The frame message without its bytes, and the bytes (raw pixels in `staging`, or a JPEG)."""
     height, width = frame.shape[:2]
     if encoding == "jpeg":
         ok, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])
         if not ok:
             raise SourceError("JPEG encoding failed")
-        data = buf.tobytes()
+        data: bytes | bytearray = buf.tobytes()
     else:
-        data = np.ascontiguousarray(frame).tobytes()
-    return Frame(header=header, width=width, height=height, encoding=encoding, data=data)
+        data = staging.fill(frame)
+    return Frame(header=header, width=width, height=height, encoding=encoding, data=b""), data
 
 
 class CameraService(Service):
@@ -36,6 +39,12 @@ class CameraService(Service):
         self._backoff = config.reopen_backoff_s
         self._seq = 0
         self.source_errors = 0
+        self._staging = PixelStaging()
+        self._frames: ShmFramePublisher | None = None
+
+    def on_start(self) -> None:
+        self._frames = ShmFramePublisher(self.publisher("camera/frame"), int(self.config.shm_pool_mb * 2**20),
+                                         enabled=self.zenoh_config.shared_memory)
 
     def produce(self) -> None:
         period = 1.0 / self.config.fps
@@ -63,7 +72,8 @@ class CameraService(Service):
                 self._open = True
                 self._backoff = self.config.reopen_backoff_s
                 self.log.info("camera source %s open", self.config.source)
-            capture = self.source.read()
+            # After the first frame a decoding source writes into the staging buffer itself: no copy.
+            capture = self.source.read(self._staging.view if self._staging.view.size else None)
         except SourceError as exc:
             self.source_errors += 1
             self.record_error("source", f"camera source: {exc}; reopening in {self._backoff:.1f} s")
@@ -82,8 +92,13 @@ class CameraService(Service):
         header.valid = True
         self._seq += 1
         start = time.perf_counter_ns()
-        self.publish("camera/frame", encode_frame(capture.frame, header, self.config.encoding,
-                                                   self.config.jpeg_quality))
+        meta, data = encode_frame(capture.frame, header, self.config.encoding, self.config.jpeg_quality,
+                                  self._staging)
+        assert self._frames is not None
+        if not self._frames.put(meta, data) and self._frames.enabled:
+            self.record_error("shm_pool", f"shared-memory pool ({self.config.shm_pool_mb:g} MB) held by subscribers: "
+                                          "frame sent as bytes")
+        self.count_published("camera/frame", meta)
         if capture.truth is not None:
             x, y, yaw = capture.truth
             self.publish("camera/ground_truth",
@@ -99,4 +114,6 @@ class CameraService(Service):
         self._close_source()
 
     def health_detail(self) -> dict[str, float | int | str]:
-        return {"source": self.config.source, "source_errors": self.source_errors, "seq": self._seq}
+        shm = self._frames.stats if self._frames is not None else None
+        return {"source": self.config.source, "source_errors": self.source_errors, "seq": self._seq,
+                "frames_in_shm": shm.in_shm if shm else 0, "frames_as_bytes": shm.fallback_bytes if shm else 0}

@@ -35,7 +35,8 @@ class Capture:
 
 class FrameSource(Protocol):
     def open(self) -> None: ...
-    def read(self) -> Capture: ...
+    def read(self, out: np.ndarray | None = None) -> Capture:
+        """The next frame; a source that decodes may write it into `out` (when the shape fits) and return it."""
     def close(self) -> None: ...
 
 
@@ -58,10 +59,10 @@ class DeviceSource:
         cap.set(cv2.CAP_PROP_FPS, self.config.fps)
         self._cap = cap
 
-    def read(self) -> Capture:
+    def read(self, out: np.ndarray | None = None) -> Capture:
         if self._cap is None:
             raise SourceError("device not open")
-        ok, frame = self._cap.read()
+        ok, frame = self._cap.read(out) if out is not None else self._cap.read()
         if not ok or frame is None:
             raise SourceError(f"camera {self.config.device!r} returned no frame")
         return Capture(frame, None)
@@ -85,13 +86,13 @@ class FileSource:
             raise SourceError(f"cannot decode video file {self.config.path}")
         self._cap = cap
 
-    def read(self) -> Capture:
+    def read(self, out: np.ndarray | None = None) -> Capture:
         if self._cap is None:
             raise SourceError("file not open")
-        ok, frame = self._cap.read()
+        ok, frame = self._cap.read(out) if out is not None else self._cap.read()
         if not ok and self.config.loop:
             self._cap.set(cv2.CAP_PROP_POS_FRAMES, 0)
-            ok, frame = self._cap.read()
+            ok, frame = self._cap.read(out) if out is not None else self._cap.read()
         if not ok or frame is None:
             raise SourceError(f"end of {self.config.path}")
         return Capture(frame, None)
@@ -134,7 +135,7 @@ class FolderSource:
         self._poses = read_seed_poses(self.config.csv) if self.config.csv else {}
         self._index = 0
 
-    def read(self) -> Capture:
+    def read(self, out: np.ndarray | None = None) -> Capture:
         if self._index >= len(self._files):
             if not self.config.loop:
                 raise SourceError(f"end of folder {self.config.path}")
@@ -161,7 +162,7 @@ class SimFrameSource:
     def open(self) -> None:
         self._sim.open()
 
-    def read(self) -> Capture:
+    def read(self, out: np.ndarray | None = None) -> Capture:
         frame, pose = self._sim.read()
         return Capture(frame, pose)
 

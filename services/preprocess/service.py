@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 
@@ -11,6 +12,7 @@ from courtloc.common.messages import Edges, Frame
 from courtloc.common.payloads import FrameError, decode_frame, hits_to_bytes
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Topic
+from courtloc.common.shm_frames import ReceivedFrame, decode_frame_payload
 from courtloc.scan.config import PreprocessConfig
 from courtloc.scan.preprocessor import Preprocessor
 
@@ -24,15 +26,27 @@ class PreprocessService(Service):
         self.preprocessor = Preprocessor(config)
         self._last_preview = 0.0
         self.hits_last = 0
+        self.frames_via_shm = 0
+        self.frames_via_bytes = 0
 
     def on_start(self) -> None:
         # Ray tables and the colour bit table take ~0.2 s to build: pay it before the first frame arrives.
         self.preprocessor.warm_up()
 
-    def on_message(self, topic: Topic, message: Frame, delivery: Delivery) -> None:
+    def decode_input(self, topic: Topic, payload: Any) -> Any:
+        if topic.message is Frame:  # the pixels are copied out of the payload once, never re-encoded
+            return decode_frame_payload(payload)
+        return super().decode_input(topic, payload)
+
+    def on_message(self, topic: Topic, received: ReceivedFrame, delivery: Delivery) -> None:
+        message = received.message
+        if received.via_shm:
+            self.frames_via_shm += 1
+        else:
+            self.frames_via_bytes += 1
         fresh = self.is_fresh(message.header, topic)
         try:
-            image = decode_frame(message.encoding, message.data, message.width, message.height)
+            image = decode_frame(message.encoding, received.pixels, message.width, message.height)
             hits = self.preprocessor.process(image)
         except FrameError as exc:
             self.reject(topic.path, exc.reason, str(exc))
@@ -56,4 +70,5 @@ class PreprocessService(Service):
                                                   data=self.preprocessor.debug_preview_jpeg(image, hits)))
 
     def health_detail(self) -> dict[str, float | int | str]:
-        return {"hits_last": self.hits_last, "scan": "compiled" if self.preprocessor.native else "numpy"}
+        return {"hits_last": self.hits_last, "scan": "compiled" if self.preprocessor.native else "numpy",
+                "frames_via_shm": self.frames_via_shm, "frames_via_bytes": self.frames_via_bytes}
