@@ -18,9 +18,10 @@ class NotJpeg(ValueError):
     """The bytes are not a JPEG, or its header ends before it says how big the image is."""
 
 
-def jpeg_size(data: bytes) -> tuple[int, int]:
-    """(width, height) declared by the JPEG in `data`; NotJpeg if it is not one."""
-    if not data.startswith(SOI):
+def jpeg_size(data: bytes | memoryview) -> tuple[int, int]:
+    """(width, height) declared by the JPEG in `data` (bytes, or a view of a received buffer); NotJpeg if it
+    is not one."""
+    if bytes(data[:len(SOI)]) != SOI:
         raise NotJpeg("no JPEG start-of-image marker")
     pos = 2
     n = len(data)

@@ -79,6 +79,9 @@ class ProcessSampler:
                 "note": "" if roles else "no /proc samples (not Linux, or the run was shorter than the warm-up)"}
 
 
+STAGE_MODULE_PREFIX = "courtloc.services."
+
+
 def child_processes(parent: int) -> dict[str, int]:
     """The launcher's children by role: 'router' or the stage name (from their command lines)."""
     found: dict[str, int] = {}
@@ -92,10 +95,11 @@ def child_processes(parent: int) -> dict[str, int]:
             continue  # exited meanwhile
         if int(stat.rsplit(")", 1)[1].split()[1]) != parent:
             continue
-        if "router" in argv:
+        stage = next((a.rsplit(".", 1)[1] for a in argv if a.startswith(STAGE_MODULE_PREFIX)), None)
+        if stage is not None:  # a stage runs as its own entry point, `python -m courtloc.services.<stage>`
+            found[stage] = int(entry.name)
+        elif "router" in argv:
             found["router"] = int(entry.name)
-        elif "run" in argv and argv.index("run") + 1 < len(argv):
-            found[argv[argv.index("run") + 1]] = int(entry.name)
     return found
 
 

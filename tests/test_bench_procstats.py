@@ -13,9 +13,9 @@ pytestmark = pytest.mark.skipif(not os.path.exists("/proc/self/smaps_rollup"), r
 
 
 def test_children_are_named_by_role_and_measured() -> None:
-    # argv as the launcher writes it: `... -m courtloc run camera ...`; the child burns CPU, then waits
+    # argv as the launcher writes it: `... -m courtloc.services.camera ...`; the child burns CPU, then waits
     code = "import sys; sum(i * i for i in range(3_000_000)); print('ready', flush=True); sys.stdin.read()"
-    child = subprocess.Popen([sys.executable, "-c", code, "run", "camera", "--config", "x.toml"],
+    child = subprocess.Popen([sys.executable, "-c", code, "courtloc.services.camera", "--config", "x.toml"],
                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
         assert child.stdout.readline().strip() == "ready"
