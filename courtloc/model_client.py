@@ -14,7 +14,8 @@ from courtloc.common.control import (
 )
 from courtloc.common.services_table import CONTROLS
 from courtloc.security.signing import signature_path
-from courtloc.services.infer.store import MODEL_FILE, sha256_file
+from courtloc.localizer.golden import GOLDEN_FILE, sidecar_path
+from courtloc.services.infer.store import MODEL_FILE, StoreError, check_name, sha256_file
 
 log = logging.getLogger(__name__)
 CHUNK_TIMEOUT_S = 30.0
@@ -25,19 +26,29 @@ class ModelClientError(RuntimeError):
 
 
 def push_files(source: Path) -> dict[str, Path]:
-    """Store file name -> local path: a lone ONNX file becomes model.onnx; a package folder is sent flat."""
+    """Store file name -> local path: a lone ONNX file becomes model.onnx (with its signature and golden
+    inputs beside it); a package folder is sent flat. Every name follows the store's naming rule."""
     if source.is_dir():
-        files = {p.name: p for p in sorted(source.iterdir()) if p.is_file()}
+        # Hidden files (an editor's or a file manager's) are not package parts.
+        files = {p.name: p for p in sorted(source.iterdir()) if p.is_file() and not p.name.startswith(".")}
         if MODEL_FILE not in files:
             raise ModelClientError(f"{source} has no {MODEL_FILE}")
-        return files
-    if source.is_file():
+    elif source.is_file():
         files = {MODEL_FILE: source}
         signature = signature_path(source)
         if signature.is_file():  # a signed model travels with its signature
             files[signature_path(Path(MODEL_FILE)).name] = signature
-        return files
-    raise ModelClientError(f"{source} not found")
+        golden = sidecar_path(source)
+        if golden.is_file():
+            files[GOLDEN_FILE] = golden
+    else:
+        raise ModelClientError(f"{source} not found")
+    for name in files:
+        try:
+            check_name(name, f"{source}: file name")
+        except StoreError as exc:  # the robot would refuse it: say so before sending anything
+            raise ModelClientError(str(exc)) from None
+    return files
 
 
 class ModelClient:

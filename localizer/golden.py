@@ -25,6 +25,11 @@ MAX_FRAMES = 64
 MAX_HITS = 200_000  # all frames together; a frame has a few thousand
 
 
+def sidecar_path(model_path: Path) -> Path:
+    """Where a lone ONNX file keeps its golden inputs: NAME.onnx -> NAME.golden.npz (pushed as golden.npz)."""
+    return Path(model_path).with_suffix(".golden.npz")
+
+
 class GoldenError(ValueError):
     """A golden file that is not what this module writes."""
 

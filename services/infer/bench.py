@@ -122,7 +122,6 @@ def _worker_swap(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         service = InferService("bench", ZenohConfig(), InferConfig(store=Path(tmp) / "store", threads=args.threads))
         service.active = service._load_active()
-        service._prepare_golden(service.active)
         candidate = Path(tmp) / "candidate"
         shutil.copytree(bundled_default(), candidate)
         write_manifest(candidate / "model.onnx", read_manifest(candidate / "model.onnx").model_copy(

@@ -1,8 +1,10 @@
 """Loading a stored model into a ready-to-serve predictor, and refusing the ones that must not serve.
 
-Validation runs off the hot path, before a swap: the manifest is readable and its weights' sha256
-matches, the graph's signature matches the manifest, a signature file verifies (when required), and
-golden inputs give finite poses on the court within the latency budget. Only then is it warmed up.
+Validation runs off the hot path, before a swap, in a child process with a memory limit and a
+deadline (services/infer/sandbox.py): the manifest is readable and its weights' sha256 matches, the
+graph's signature matches the manifest, a signature file verifies (when required), and the package's
+own golden inputs give, within the latency budget, poses within the accuracy the manifest states
+and the deployment's limits. Only then is it loaded here and warmed up on the same golden inputs.
 """
 from __future__ import annotations
 
@@ -20,7 +22,6 @@ from courtloc.services.infer.config import InferConfig
 if TYPE_CHECKING:
     from courtloc.localizer.manifest import Manifest
     from courtloc.sim.court import Court
-from courtloc.services.infer.golden import GoldenSets
 from courtloc.services.infer.store import ModelRef, StoredModel
 
 log = logging.getLogger(__name__)
@@ -57,17 +58,21 @@ def is_on_court(court: "Court", x: float, y: float, margin: float) -> bool:
     return bool(court.contains(x, y, margin=margin))
 
 
-def load_model(stored: StoredModel, config: InferConfig, golden: GoldenSets | None,
+def load_model(stored: StoredModel, config: InferConfig, validate: bool = False,
                pushed: bool = False) -> LoadedModel:
-    """Load and (when `golden` is given) validate; raises ModelRefused with the reason.
+    """Load, after validating it in a bounded child process when `validate`; raises ModelRefused with the reason.
 
     `pushed`: the model is entering the store, so its signature is checked (when required). Versions
     already in the store were checked when they came in, and the bundled default ships unsigned.
     """
-    from courtloc.localizer.manifest import ManifestError, read_manifest, verify_weights
+    from courtloc.localizer.manifest import ManifestError, read_manifest
     from courtloc.localizer.predictor import load_predictor
     from courtloc.sim.court import load_court
 
+    if validate:
+        from courtloc.services.infer.sandbox import validate_in_child
+
+        validate_in_child(stored.folder, config, pushed)
     path = stored.model_path
     try:
         manifest = read_manifest(path)
@@ -75,16 +80,6 @@ def load_model(stored: StoredModel, config: InferConfig, golden: GoldenSets | No
         raise ModelRefused(f"manifest: {exc}") from None
     except Exception as exc:  # a truncated or non-ONNX file fails inside onnx's parser
         raise ModelRefused(f"not a readable ONNX model: {type(exc).__name__}: {exc}") from None
-    if golden is not None:
-        if pushed:
-            _check_signature_file(stored.folder, config)
-        check_graph_signature(path, manifest)
-        try:
-            verify_weights(path)
-        except ManifestError as exc:
-            raise ModelRefused(f"sha256: {exc}") from None
-        except Exception as exc:
-            raise ModelRefused(f"weights unreadable: {type(exc).__name__}: {exc}") from None
     try:
         predictor = load_predictor(stored.folder, providers=available_providers(config.providers),
                                    threads=config.threads)
@@ -95,9 +90,55 @@ def load_model(stored: StoredModel, config: InferConfig, golden: GoldenSets | No
     except Exception as exc:
         raise ModelRefused(f"unknown court {manifest.court!r}: {exc}") from None
     loaded = LoadedModel(stored.ref, predictor, court, manifest.input.kind)
-    if golden is not None:
-        _run_golden(loaded, config, golden)
+    if validate:
+        _warm_up(loaded, stored.folder)
     return loaded
+
+
+def _warm_up(model: LoadedModel, folder: Path) -> None:
+    """The golden inputs once through the session that will serve: its first runs are the slow ones."""
+    from courtloc.localizer.golden import run_golden
+    from courtloc.services.infer.golden import package_golden
+
+    try:
+        run_golden(model.predictor, package_golden(folder, model.manifest))
+    except Exception as exc:  # validated in the child a moment ago: only a changed file gets here
+        raise ModelRefused(f"golden inputs failed after validation: {type(exc).__name__}: {exc}") from None
+
+
+def validate_candidate(folder: Path, config: InferConfig, pushed: bool) -> str:
+    """Every check on the model in `folder` (run in the validation child); ModelRefused with the reason,
+    else a one-line summary of its golden numbers."""
+    from courtloc.localizer.manifest import ManifestError, read_manifest, verify_weights
+    from courtloc.localizer.predictor import load_predictor
+    from courtloc.sim.court import load_court
+
+    path = folder / "model.onnx"
+    try:
+        manifest = read_manifest(path)
+    except ManifestError as exc:
+        raise ModelRefused(f"manifest: {exc}") from None
+    except Exception as exc:  # a truncated or non-ONNX file fails inside onnx's parser
+        raise ModelRefused(f"not a readable ONNX model: {type(exc).__name__}: {exc}") from None
+    if pushed:
+        _check_signature_file(folder, config)
+    check_graph_signature(path, manifest)
+    try:
+        verify_weights(path)
+    except ManifestError as exc:
+        raise ModelRefused(f"sha256: {exc}") from None
+    except Exception as exc:
+        raise ModelRefused(f"weights unreadable: {type(exc).__name__}: {exc}") from None
+    try:
+        predictor = load_predictor(folder, providers=available_providers(config.providers), threads=config.threads)
+    except Exception as exc:  # onnxruntime raises its own types for bad graphs and wrong shapes
+        raise ModelRefused(f"cannot load: {type(exc).__name__}: {exc}") from None
+    try:
+        court = load_court(manifest.court)
+    except Exception as exc:
+        raise ModelRefused(f"unknown court {manifest.court!r}: {exc}") from None
+    return _run_golden(LoadedModel(ModelRef(name="candidate", version=1), predictor, court, manifest.input.kind),
+                       folder, config)
 
 
 def check_graph_signature(path: Path, manifest: "Manifest") -> None:
@@ -135,30 +176,49 @@ def _check_signature_file(folder: Path, config: InferConfig) -> None:
         raise ModelRefused(f"signature: {exc}") from None
 
 
-def _run_golden(model: LoadedModel, config: InferConfig, golden: GoldenSets) -> None:
+def _run_golden(model: LoadedModel, folder: Path, config: InferConfig) -> str:
+    """The package's golden inputs against their true poses: refused with the numbers past the accuracy
+    the manifest states or the deployment's limit, off the court, not valid, or too slow."""
+    from courtloc.localizer.golden import run_golden
+    from courtloc.services.infer.golden import GoldenUnavailable, accuracy_limits, package_golden
+
     manifest = model.manifest
     try:
-        frames = golden.get(manifest.court, manifest.camera)
+        frames = package_golden(folder, manifest)
+    except GoldenUnavailable as exc:
+        raise ModelRefused(f"golden inputs: {exc}") from None
+    if len(frames) < config.golden_min_frames:
+        raise ModelRefused(f"golden inputs: {len(frames)} frames, the deployment requires at least "
+                           f"{config.golden_min_frames}")
+    try:
+        run = run_golden(model.predictor, frames)
     except Exception as exc:
-        raise ModelRefused(f"no golden inputs for court {manifest.court!r} / camera {manifest.camera!r}: {exc}") \
-            from None
-    timings = []
-    # The first call warms the session up from a cold start (no previous pose) and is not timed. The
-    # timed calls run as frames are served at frame rate, tracking from a previous pose (a tracking
-    # model's cold-start search is many times slower and happens once, not per frame).
-    for previous, frame in [(None, frames[0]), *((f.pose, f) for f in frames)]:
-        start = time.perf_counter()
-        try:
-            pred = model.predictor.predict(frame.hits, frame.width, frame.height, previous=previous)
-        except Exception as exc:
-            raise ModelRefused(f"golden input failed: {type(exc).__name__}: {exc}") from None
-        timings.append(time.perf_counter() - start)
-        values = [pred.x, pred.y] + ([] if pred.yaw is None else [pred.yaw])
+        raise ModelRefused(f"golden input failed: {type(exc).__name__}: {exc}") from None
+    (position_limit, position_source), (yaw_limit, yaw_source) = accuracy_limits(manifest, config)
+    for i, frame in enumerate(frames):
+        x, y, yaw = run.answers[i]
+        truth = ", ".join(f"{v:.2f}" for v in frame.pose)
+        values = [x, y] + ([] if yaw is None else [yaw])
         if not all(math.isfinite(v) for v in values):
-            raise ModelRefused(f"golden input gave a non-finite pose {values}")
-        if not is_on_court(model.court, pred.x, pred.y, config.on_court_margin_m):
-            raise ModelRefused(f"golden input gave a pose off the court ({pred.x:.2f}, {pred.y:.2f})")
-    median_ms = float(np.median(timings[1:])) * 1e3
+            raise ModelRefused(f"golden frame {i} at ({truth}) gave a non-finite pose {values}")
+        if not is_on_court(model.court, x, y, config.on_court_margin_m):
+            raise ModelRefused(f"golden frame {i} at ({truth}) gave a pose off the court ({x:.2f}, {y:.2f})")
+        error = run.position_error_m[i]
+        if error > position_limit:
+            raise ModelRefused(f"golden frame {i} at ({truth}) answered ({x:.2f}, {y:.2f}): position error "
+                               f"{error:.3f} m > {position_limit:g} m ({position_source})")
+        yaw_error = run.yaw_error_deg[i]
+        if yaw_error is not None and yaw_limit is not None and yaw_error > yaw_limit:
+            raise ModelRefused(f"golden frame {i} at ({truth}) answered yaw {yaw:.3f} rad: yaw error "
+                               f"{yaw_error:.2f} deg > {yaw_limit:g} deg ({yaw_source})")
+        if not run.valid[i]:
+            raise ModelRefused(f"golden frame {i} at ({truth}): the model calls its own pose not valid")
+    median_ms = float(np.median(run.seconds)) * 1e3
     if median_ms > config.golden_latency_budget_ms:
         raise ModelRefused(f"too slow: {median_ms:.1f} ms per frame > budget {config.golden_latency_budget_ms} ms")
-    log.info("model %s validated: golden median %.2f ms", model.ref, median_ms)
+    yaw_max = run.max_yaw_error_deg()
+    summary = (f"golden: {len(frames)} frames, position error max {max(run.position_error_m):.4f} m "
+               f"(limit {position_limit:g} m)" + ("" if yaw_max is None else f", yaw max {yaw_max:.3f} deg")
+               + f", median {median_ms:.2f} ms")
+    log.info("candidate validated: %s", summary)
+    return summary

@@ -20,7 +20,6 @@ from courtloc.common.runtime import Service
 from courtloc.common.services_table import CONTROLS, Topic
 from courtloc.services.infer.config import InferConfig
 from courtloc.services.infer.engine import LoadedModel, ModelRefused, is_on_court, load_model
-from courtloc.services.infer.golden import GoldenSets
 from courtloc.services.infer.model_control import ModelControl
 from courtloc.services.infer.shadow import ShadowRunner
 from courtloc.services.infer.store import ModelRef, ModelStore, StoredModel
@@ -49,12 +48,12 @@ class InferService(Service):
         super().__init__(robot_id, zenoh_config)
         self.config = config
         self.store = ModelStore(config.store)
-        self.golden = GoldenSets()
         self.active: LoadedModel | None = None
         self.shadow: ShadowRunner | None = None
         self.tracker = Tracker()
         self.swaps = 0
-        self._control = ModelControl(self, Uploads(self.store, int(config.max_upload_mb * 2**20)))
+        self._control = ModelControl(self, Uploads(self.store, int(config.max_upload_mb * 2**20),
+                                                   max_open=config.max_open_uploads, ttl_s=config.upload_ttl_h * 3600))
         self._control_thread: threading.Thread | None = None
         self._queries: queue.Queue[zenoh.Query] = queue.Queue(maxsize=64)
         self._queryable = None
@@ -63,21 +62,12 @@ class InferService(Service):
     def on_start(self) -> None:
         self.active = self._load_active()
         self.log.info("serving model %s", self.active.ref)
-        self._prepare_golden(self.active)
         assert self.session is not None
         control = CONTROLS["infer/model"]
         # The callback only queues the query; requests are answered on our own control thread.
         self._queryable = self.session.declare_queryable(control.key(self.robot_id), self._enqueue_query)
         self._control_thread = threading.Thread(target=self._serve_control, name="infer-control", daemon=True)
         self._control_thread.start()
-
-    def _prepare_golden(self, model: LoadedModel) -> None:
-        """Render the golden inputs of the serving model's court now, before frames flow: rendering them at
-        the first push would hold the GIL for tens of ms at a time while the worker serves frames."""
-        try:
-            self.golden.get(model.manifest.court, model.manifest.camera)
-        except Exception as exc:  # no golden set for this court: a push will be refused with the reason
-            self.record_error("model", f"no golden inputs for {model.ref}: {exc}")
 
     def _load_active(self) -> LoadedModel:
         """The store's active model; a fresh store gets the bundled default as version 1."""
@@ -87,12 +77,12 @@ class InferService(Service):
         stored = self.store.active()
         assert stored is not None
         try:
-            return load_model(stored, self.config, golden=None)
+            return load_model(stored, self.config)
         except ModelRefused as exc:
             # The active model was validated when it came in; if it is broken on disk now, roll back.
             self.record_error("model", f"active model {stored.ref} cannot load ({exc}); rolling back")
             target = self.store.rollback()
-            return load_model(self.store.get(target), self.config, golden=None)
+            return load_model(self.store.get(target), self.config)
 
     # ---- the hot path --------------------------------------------------------------------
     def on_message(self, topic: Topic, message: Edges, delivery: Delivery) -> None:
@@ -184,7 +174,7 @@ class InferService(Service):
 
     # ModelHost, for ModelControl
     def validate(self, stored: StoredModel, pushed: bool = False) -> LoadedModel:
-        return load_model(stored, self.config, golden=self.golden, pushed=pushed)
+        return load_model(stored, self.config, validate=True, pushed=pushed)
 
     def swap_in(self, model: LoadedModel) -> None:
         old, self.active = self.active, model  # one reference assignment: the worker sees the old or the new model
