@@ -40,6 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     export.add_argument("--version", type=int, default=1)
     export.add_argument("--court", default="seed-gazebo")
     export.add_argument("--camera", default="seed-gazebo")
+    export.add_argument("--golden-error-m", type=float, default=None,
+                        help="accuracy the manifests state on the golden inputs (default: the exported graph's "
+                             "worst golden error plus a quarter, rounded up to 5 cm)")
     export.set_defaults(func=_export)
 
     explain = sub.add_parser("explain", help="Integrated Gradients saliency PNGs of the paper network")
@@ -78,7 +81,8 @@ def _train(args: argparse.Namespace) -> int:
 def _export(args: argparse.Namespace) -> int:
     from courtloc.training.export import export_paper
 
-    written = export_paper(args.weights, args.out, args.graphs, args.name, args.version, args.court, args.camera)
+    written = export_paper(args.weights, args.out, args.graphs, args.name, args.version, args.court, args.camera,
+                           args.golden_error_m)
     for kind, path in written.items():
         print(f"{kind}: {path}")
     return 0
