@@ -201,3 +201,17 @@ def run_model_cli(config: Path, *args: str) -> tuple[int, dict, str]:
                           capture_output=True, text=True, timeout=120)
     assert done.stdout, done.stderr
     return done.returncode, json.loads(done.stdout), done.stderr
+
+
+def shuffled_package(out_dir: Path, name: str) -> Path:
+    """The bundled package with its floor table's rows shuffled, the manifest rewritten to match (so its
+    weights sha256 is consistent): a well-formed package whose answers are wrong."""
+    out_dir = relabelled_package(out_dir, name)
+    model = onnx.load(str(out_dir / "model.onnx"))
+    table = next(t for t in model.graph.initializer if t.name == "floor_table")
+    rows = numpy_helper.to_array(table).copy()
+    np.random.default_rng(16).shuffle(rows)
+    table.CopyFrom(numpy_helper.from_array(rows, "floor_table"))
+    attach_manifest(model, read_manifest(out_dir / "model.onnx"))
+    onnx.save(model, str(out_dir / "model.onnx"))
+    return out_dir
