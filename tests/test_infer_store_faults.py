@@ -205,3 +205,44 @@ def test_abandoned_uploads_are_swept_at_start_and_open_ones_are_bounded(tmp_path
         assert robot.assert_agree() == ("default", 1)
     finally:
         robot.close()
+
+
+def _wait_gone(pid: int, timeout: float = 20.0) -> bool:
+    """Until process `pid` (not our child) exits: its pidfd becomes readable then."""
+    import select
+
+    try:
+        fd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        return True
+    try:
+        return bool(select.select([fd], [], [], timeout)[0])
+    finally:
+        os.close(fd)
+
+
+def test_killed_during_a_commit_the_store_and_the_served_model_agree(robot: Robot) -> None:
+    """SIGKILL while a pushed model is being validated (it never finishes): the validation child goes with the
+    stage, and the restarted stage serves what the record says, with no trace of the push."""
+    import re
+    import threading
+
+    path = tiny_paper_model(robot.tmp / "spins" / "model.onnx", "spins", hang=True)
+    pushing = threading.Thread(target=lambda: _push_ignoring_errors(robot, path), daemon=True)
+    pushing.start()
+    line = robot.infer.wait_line("in child pid", timeout=60)
+    child = int(re.search(r"in child pid (\d+)", line).group(1))
+    robot.infer.kill()
+    assert _wait_gone(child), "the validation child outlived the stage"
+    robot.start()
+    assert robot.assert_agree() == ("default", 1)
+    assert [str(m.ref) for m in ModelStore(robot.store_dir).models()] == ["default/1"]
+    assert not any((robot.store_dir / INCOMING).iterdir()), "the cut commit's upload was not swept at start"
+    pushing.join(timeout=60)
+
+
+def _push_ignoring_errors(robot: Robot, path: Path) -> None:
+    try:
+        robot.models.push(path)
+    except Exception:  # noqa: BLE001 - the stage is killed under it: no answer is the expected outcome
+        pass

@@ -47,8 +47,10 @@ def validate_in_child(folder: Path, config: InferConfig, pushed: bool) -> str:
     request = SandboxRequest(folder=Path(folder).resolve(), config=config, pushed=pushed)
     # One malloc arena per thread would reserve 64 MB of address space each, counted against the limit.
     env = {**os.environ, "MALLOC_ARENA_MAX": "2", "OMP_NUM_THREADS": "1"}
-    child = subprocess.Popen([sys.executable, "-m", "courtloc.services.infer.sandbox"], stdin=subprocess.PIPE,
+    child = subprocess.Popen([sys.executable, "-m", "courtloc.services.infer.sandbox", str(os.getpid())], stdin=subprocess.PIPE,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    log.info("validating %s in child pid %d (limits %g MB, %g s)", Path(folder).name, child.pid,
+             config.validation_memory_mb, config.validation_timeout_s)
     try:
         out, err = child.communicate(request.model_dump_json(), timeout=config.validation_timeout_s)
     except subprocess.TimeoutExpired:
@@ -74,6 +76,17 @@ def validate_in_child(folder: Path, config: InferConfig, pushed: bool) -> str:
 def _memory_limited(reason: str) -> bool:
     lowered = reason.lower()
     return any(word in lowered for word in _MEMORY_WORDS)
+
+
+def _die_with_parent(parent: int) -> None:
+    """SIGKILL when the infer stage dies (PR_SET_PDEATHSIG), so a killed stage leaves no validation running."""
+    import ctypes
+    import signal
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    if os.getppid() != parent:  # the parent died before the call
+        os._exit(1)
 
 
 def _limit_self(config: InferConfig) -> None:
@@ -102,6 +115,7 @@ def main() -> int:
     from courtloc.services.infer.engine import ModelRefused, validate_candidate
 
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
+    _die_with_parent(int(sys.argv[1]))
     request = SandboxRequest.model_validate_json(sys.stdin.read())
     _preload()
     _limit_self(request.config)
