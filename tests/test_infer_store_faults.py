@@ -232,6 +232,7 @@ def test_killed_during_a_commit_the_store_and_the_served_model_agree(robot: Robo
     pushing.start()
     line = robot.infer.wait_line("in child pid", timeout=60)
     child = int(re.search(r"in child pid (\d+)", line).group(1))
+    assert robot.served() == ("default", 1), "the stage stalls while a candidate is validated"
     robot.infer.kill()
     assert _wait_gone(child), "the validation child outlived the stage"
     robot.start()
