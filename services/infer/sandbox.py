@@ -100,10 +100,23 @@ def _limit_self(config: InferConfig) -> None:
     os.nice(10)  # the stage's own threads keep the CPU they need for frames
 
 
-def _preload() -> None:
-    """Everything validation imports, before the cap: the limit is on the candidate, not on our libraries."""
-    import onnx  # noqa: F401
-    import onnxruntime  # noqa: F401
+def _preload(config: InferConfig) -> None:
+    """Everything validation imports, and the execution providers started, before the cap: the limit is on
+    the candidate, not on our libraries (a CUDA or TensorRT provider reserves its address space when its
+    first session opens)."""
+    import numpy as np
+    import onnxruntime
+    from onnx import TensorProto, helper
+
+    from courtloc.services.infer.engine import available_providers
+
+    graph = helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], "warm",
+                              [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])],
+                              [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8)
+    session = onnxruntime.InferenceSession(model.SerializeToString(),
+                                           providers=available_providers(config.providers))
+    session.run(None, {"x": np.zeros(1, np.float32)})
 
     import courtloc.localizer.geometric  # noqa: F401
     import courtloc.localizer.predictor  # noqa: F401
@@ -117,7 +130,7 @@ def main() -> int:
     logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
     _die_with_parent(int(sys.argv[1]))
     request = SandboxRequest.model_validate_json(sys.stdin.read())
-    _preload()
+    _preload(request.config)
     _limit_self(request.config)
     try:
         report = SandboxReport(ok=True, reason=validate_candidate(request.folder, request.config, request.pushed))
