@@ -42,7 +42,22 @@ class Robot:
     def start(self):  # noqa: ANN201 - buskit.Proc
         self.infer = start_stage("infer", self.config)
         self.infer.wait_line("infer running for robot", timeout=60)
+        self._wait_control_routed()
         return self.infer
+
+    def _wait_control_routed(self, timeout: float = 20.0) -> None:
+        """Until the router knows the stage's model-control queryable: a query before that reaches nobody."""
+        import threading
+
+        matched = threading.Event()
+        querier = self.client.session.declare_querier(self.models.key)
+        listener = querier.declare_matching_listener(lambda status: matched.set() if status.matching else None)
+        try:
+            if not (querier.matching_status.matching or matched.wait(timeout)):
+                raise AssertionError(f"the infer stage's model control was not reachable within {timeout} s")
+        finally:
+            listener.undeclare()
+            querier.undeclare()
 
     def restart(self) -> None:
         assert self.infer.stop() == 0, self.infer.output()
