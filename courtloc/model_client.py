@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+import threading
 from pathlib import Path
 from typing import Callable
 
@@ -56,8 +57,23 @@ class ModelClient:
         self.session = session
         self.control = CONTROLS["infer/model"]
         self.key = self.control.key(robot_id)
+        self._reachable = False
+
+    def _wait_reachable(self, timeout_s: float) -> None:
+        """Until the router routes our queries to an infer stage (a query sent before reaches nobody)."""
+        if self._reachable:
+            return
+        matched = threading.Event()
+        querier = self.session.declare_querier(self.key)
+        listener = querier.declare_matching_listener(lambda status: matched.set() if status.matching else None)
+        try:
+            self._reachable = querier.matching_status.matching or matched.wait(timeout_s)
+        finally:
+            listener.undeclare()
+            querier.undeclare()
 
     def request(self, body: ModelRequestBody, timeout_s: float | None = None) -> ModelReply:
+        self._wait_reachable(timeout_s or self.control.timeout_s)
         payload = codec.encode(ModelRequest(body=body))
         replies = self.session.get(self.key, payload=payload, timeout=timeout_s or self.control.timeout_s)
         for reply in replies:
