@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+import threading
 from pathlib import Path
 from typing import Callable
 
@@ -23,7 +24,8 @@ from courtloc.common.control import (
 )
 from courtloc.common.services_table import CONTROLS
 from courtloc.common.signing import signature_path
-from courtloc.services.infer.store import MODEL_FILE, sha256_file
+from courtloc.localizer.golden import GOLDEN_FILE, sidecar_path
+from courtloc.services.infer.store import MODEL_FILE, StoreError, check_name, sha256_file
 
 log = logging.getLogger(__name__)
 CHUNK_TIMEOUT_S = 30.0
@@ -34,19 +36,29 @@ class ModelClientError(RuntimeError):
 
 
 def push_files(source: Path) -> dict[str, Path]:
-    """Store file name -> local path: a lone ONNX file becomes model.onnx; a package folder is sent flat."""
+    """Store file name -> local path: a lone ONNX file becomes model.onnx (with its signature and golden
+    inputs beside it); a package folder is sent flat. Every name follows the store's naming rule."""
     if source.is_dir():
-        files = {p.name: p for p in sorted(source.iterdir()) if p.is_file()}
+        # Hidden files (an editor's or a file manager's) are not package parts.
+        files = {p.name: p for p in sorted(source.iterdir()) if p.is_file() and not p.name.startswith(".")}
         if MODEL_FILE not in files:
             raise ModelClientError(f"{source} has no {MODEL_FILE}")
-        return files
-    if source.is_file():
+    elif source.is_file():
         files = {MODEL_FILE: source}
         signature = signature_path(source)
         if signature.is_file():  # a signed model travels with its signature
             files[signature_path(Path(MODEL_FILE)).name] = signature
-        return files
-    raise ModelClientError(f"{source} not found")
+        golden = sidecar_path(source)
+        if golden.is_file():
+            files[GOLDEN_FILE] = golden
+    else:
+        raise ModelClientError(f"{source} not found")
+    for name in files:
+        try:
+            check_name(name, f"{source}: file name")
+        except StoreError as exc:  # the robot would refuse it: say so before sending anything
+            raise ModelClientError(str(exc)) from None
+    return files
 
 
 class ModelClient:
@@ -54,8 +66,23 @@ class ModelClient:
         self.session = session
         self.control = CONTROLS["infer/model"]
         self.key = self.control.key(robot_id)
+        self._reachable = False
+
+    def _wait_reachable(self, timeout_s: float) -> None:
+        """Until the router routes our queries to an infer stage (a query sent before reaches nobody)."""
+        if self._reachable:
+            return
+        matched = threading.Event()
+        querier = self.session.declare_querier(self.key)
+        listener = querier.declare_matching_listener(lambda status: matched.set() if status.matching else None)
+        try:
+            self._reachable = querier.matching_status.matching or matched.wait(timeout_s)
+        finally:
+            listener.undeclare()
+            querier.undeclare()
 
     def request(self, body: ModelRequestBody, timeout_s: float | None = None) -> ModelReply:
+        self._wait_reachable(timeout_s or self.control.timeout_s)
         payload = codec.encode(ModelRequest(body=body))
         replies = self.session.get(self.key, payload=payload, timeout=timeout_s or self.control.timeout_s)
         for reply in replies:

@@ -37,8 +37,8 @@ from courtloc.models import bundled_package
 from courtloc.scan.config import PreprocessConfig
 from courtloc.scan.preprocessor import Preprocessor
 from courtloc.services.infer.config import InferConfig
-from courtloc.services.infer.engine import available_providers
 from courtloc.services.infer.service import InferService
+from courtloc.services.infer.validation import available_providers
 from courtloc.sim.render import Renderer
 from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
@@ -123,7 +123,6 @@ def _worker_swap(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         service = InferService("bench", ZenohConfig(), InferConfig(store=Path(tmp) / "store", threads=args.threads))
         service.active = service._load_active()
-        service._prepare_golden(service.active)
         candidate = Path(tmp) / "candidate"
         shutil.copytree(bundled_package(), candidate)
         write_manifest(candidate / "model.onnx", read_manifest(candidate / "model.onnx").model_copy(

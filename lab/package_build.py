@@ -6,8 +6,10 @@ from pathlib import Path
 
 import onnx
 
+from courtloc.lab.golden_build import check_built, render_golden, write_golden
 from courtloc.lab.onnx_graph import INPUT, OUTPUT, build_graph
 from courtloc.localizer.config import LocalizerConfig
+from courtloc.localizer.golden import GOLDEN_FILE
 from courtloc.localizer.manifest import (
     MODEL_FILE,
     InputSpec,
@@ -18,7 +20,15 @@ from courtloc.localizer.manifest import (
     attach_manifest,
     runtime_preprocessing,
 )
-from courtloc.localizer.package import CAMERA_FILE, CONFIG_FILE, COURT_FILE, KIND, file_sha256
+from courtloc.localizer.package import (
+    CAMERA_FILE,
+    CONFIG_FILE,
+    COURT_FILE,
+    GOLDEN_POSITION_M,
+    GOLDEN_YAW_DEG,
+    KIND,
+    file_sha256,
+)
 from courtloc.localizer.projection import build_floor_table
 from courtloc.world.camera import CameraModel
 from courtloc.world.court import Court
@@ -29,14 +39,20 @@ log = logging.getLogger(__name__)
 def build_package(out_dir: Path, court: Court, camera: CameraModel, config: LocalizerConfig | None = None,
                   name: str = "courtloc-geometric", version: int = 1,
                   metrics: dict[str, dict[str, float]] | None = None,
-                  training_data: TrainingData | None = None) -> Manifest:
-    """Write a package folder; returns the manifest stored in its model.onnx."""
+                  training_data: TrainingData | None = None,
+                  golden_position_m: float = GOLDEN_POSITION_M, golden_yaw_deg: float = GOLDEN_YAW_DEG) -> Manifest:
+    """Write a package folder; returns the manifest stored in its model.onnx.
+
+    Its golden inputs are rendered here, and the built package is checked against the accuracy it
+    states on them (golden_position_m, golden_yaw_deg): ValueError when it misses it."""
     config = config or LocalizerConfig()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / COURT_FILE).write_text(court.model_dump_json(indent=1))
     (out_dir / CAMERA_FILE).write_text(camera.model_dump_json(indent=1))
     (out_dir / CONFIG_FILE).write_text(config.model_dump_json(indent=1))
+    frames = render_golden(court, camera)
+    golden = write_golden(out_dir / GOLDEN_FILE, frames, golden_position_m, golden_yaw_deg)
     table = build_floor_table(camera, config.edge_offset_px, config.max_range_m)
     model = build_graph(table, camera.height, camera.width)
     manifest = Manifest(
@@ -47,7 +63,7 @@ def build_package(out_dir: Path, court: Court, camera: CameraModel, config: Loca
         preprocessing=runtime_preprocessing(camera.width, camera.height),
         court=court.name, camera=camera.name,
         outputs=[OutputSpec(name=OUTPUT, components=["x_robot", "y_robot"], units=["m", "m"])],
-        training_data=training_data, metrics=metrics or {},
+        training_data=training_data, metrics=metrics or {}, golden=golden,
         extra={
             "localizer": KIND,
             "pose_outputs": "x m, y m, yaw rad (court frame), quality 0..1, valid",
@@ -60,5 +76,7 @@ def build_package(out_dir: Path, court: Court, camera: CameraModel, config: Loca
     )
     final = attach_manifest(model, manifest)
     onnx.save(model, str(out_dir / MODEL_FILE))
-    log.info("wrote localizer package %s (%s / %s)", out_dir, court.name, camera.name)
+    run = check_built(out_dir / MODEL_FILE, frames, golden)
+    log.info("wrote localizer package %s (%s / %s); golden position error max %.4f m, yaw max %.3f deg",
+             out_dir, court.name, camera.name, max(run.position_error_m), run.max_yaw_error_deg() or 0.0)
     return final

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from pathlib import Path
 from typing import Literal, Optional, Union
 
@@ -25,6 +26,17 @@ from courtloc.scan.config import DEFAULT_HSV_RANGES, ScanConfig
 
 MANIFEST_KEY = "courtloc.manifest"
 SCHEMA = "courtloc.manifest/1"
+
+# The one rule for every name the model store and a package use as a path component: model names,
+# pushed file names, package parts. It starts with a letter or digit, so '.', '..' and the store's own
+# dot-files ('.active.json', '.incoming', '.files.json') can never be named; 128 characters keep it far
+# below any filesystem's name limit.
+PLAIN_NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$"
+PLAIN_NAME_RULE = "a plain name: a letter or digit, then letters, digits, '_', '.', '-'; at most 128 characters"
+
+
+def is_plain_name(name: str) -> bool:
+    return re.fullmatch(PLAIN_NAME_PATTERN, name) is not None
 
 # 'dense_image': the paper's crop as float32 [1, H, W]; 'sparse_hits': indices + values of its non-zero
 # pixels; 'scan_hits': the radial scan's int16 [K, 4] (row, col, ray, d) hits (geometric localizer).
@@ -93,6 +105,17 @@ class TrainingData(_Strict):
     description: str = ""
 
 
+class GoldenSpec(_Strict):
+    """Golden inputs shipped beside the model (made when it was built, at known poses) and the accuracy the
+    model states on them: a robot refuses a candidate whose golden error exceeds these numbers."""
+
+    file: str = Field(default="golden.npz", pattern=PLAIN_NAME_PATTERN)
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    n_frames: int = Field(ge=1)
+    max_position_error_m: float = Field(gt=0, description="stated accuracy: the largest position error on a golden frame")
+    max_yaw_error_deg: Optional[float] = Field(default=None, gt=0, description="the same for yaw; None: no yaw output")
+
+
 class Manifest(_Strict):
     schema_: str = Field(default=SCHEMA, alias="schema")
     name: str
@@ -105,6 +128,7 @@ class Manifest(_Strict):
     training_data: Optional[TrainingData] = None
     metrics: dict[str, dict[str, float]] = Field(default_factory=dict)  # split name -> PoseMetrics dict
     weights_sha256: str = ""
+    golden: Optional[GoldenSpec] = None
     extra: dict[str, Union[str, float, int, bool]] = Field(default_factory=dict)
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
@@ -180,3 +204,30 @@ def verify_weights(onnx_path: Path) -> Manifest:
         raise ManifestError(f"{onnx_path}: weights sha256 {actual[:12]}... does not match the manifest's "
                             f"{manifest.weights_sha256[:12] or '(empty)'}...")
     return manifest
+
+
+def sha256_of(path: Path, block: int = 1 << 20) -> str:
+    digest = hashlib.sha256()
+    with Path(path).open("rb") as handle:
+        while chunk := handle.read(block):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def package_part(folder: Path, name: object, sha256: object, what: str) -> Path:
+    """The file `name` of the package in `folder`, checked against the `sha256` its manifest states.
+
+    It must be a plain name that resolves (symlinks followed) to a regular file directly inside the
+    folder. Missing, outside, not a file or different content all raise the same text, so an answer
+    never tells what exists where.
+    """
+    refused = ManifestError(f"package part {what!r} is missing or is not the file its manifest names")
+    if not isinstance(name, str) or not is_plain_name(name) or not isinstance(sha256, str):
+        raise refused
+    try:
+        path = (Path(folder) / name).resolve(strict=True)
+        if path.parent != Path(folder).resolve(strict=True) or not path.is_file() or sha256_of(path) != sha256:
+            raise refused
+    except OSError:
+        raise refused from None
+    return path

@@ -27,7 +27,6 @@ OPTIONAL_HEAVY = {"torch", "torchvision", "matplotlib", "tqdm", "foxglove", "ros
 # (importer prefix, imported prefix): a lazy import the rules allow, with why.
 ALLOWED_LAZY_INTERNAL = {
     ("courtloc.services.camera", "courtloc.sim"): "the simulated camera is the twin, loaded only when chosen",
-    ("courtloc.services.infer.golden", "courtloc.sim.render"): "until packages ship golden inputs (issue 16)",
 }
 # (importer, third-party module): a lazy import of a required dependency the rules allow, with why.
 ALLOWED_LAZY_EXTERNAL = {

@@ -5,11 +5,13 @@
 - `relabelled_package` copies the bundled geometric package under another manifest name (a valid
   second model that behaves like the default).
 - `tiny_paper_model` builds a small 'dense_image' network with onnx.helper in the paper model's
-  input/output contract; its knobs make the bad ones (NaN output, a graph shape the manifest does not
-  state, weights that no longer match weights_sha256).
+  input/output contract, with golden inputs beside it (twin frames where it is right, or elsewhere);
+  its knobs make the bad ones (NaN output, a graph shape the manifest does not state, weights that no
+  longer match weights_sha256, a graph that allocates gigabytes or never finishes).
 """
 from __future__ import annotations
 
+import functools
 import shutil
 import time
 from pathlib import Path
@@ -20,6 +22,8 @@ from onnx import TensorProto, helper, numpy_helper
 
 from courtloc.common.messages import Edges, Header
 from courtloc.common.payloads import hits_to_bytes
+from courtloc.lab.golden_build import write_golden
+from courtloc.localizer.golden import GoldenFrame, sidecar_path
 from courtloc.localizer.manifest import (
     InputSpec,
     Manifest,
@@ -61,6 +65,16 @@ class TwinFrames:
                      hits=hits_to_bytes(hits))
 
 
+@functools.lru_cache(maxsize=None)
+def twin_golden(poses: tuple[tuple[float, float, float], ...]) -> tuple[GoldenFrame, ...]:
+    """Golden frames of the seed-gazebo twin at `poses`, rendered once per test process."""
+    from courtloc.lab.golden_build import render_golden
+    from courtloc.world.camera import load_camera
+    from courtloc.world.court import load_court
+
+    return tuple(render_golden(load_court(COURT), load_camera(CAMERA), poses))
+
+
 def relabelled_package(out_dir: Path, name: str, pad_bytes: int = 0) -> Path:
     """The bundled package under manifest name `name`; `pad_bytes` adds an extra file (a large push)."""
     shutil.copytree(bundled_default(), out_dir)
@@ -74,12 +88,20 @@ def relabelled_package(out_dir: Path, name: str, pad_bytes: int = 0) -> Path:
 
 
 def tiny_paper_model(path: Path, name: str, xy: tuple[float, float] = (1.0, 0.5), gain: float = 1e-5,
-                     graph_rows: int | None = None, nan: bool = False, corrupt_after_manifest: bool = False) -> Path:
-    """A 'dense_image' model: xy = sum(image) * gain + bias (on the court for any twin frame).
+                     graph_rows: int | None = None, nan: bool = False, corrupt_after_manifest: bool = False,
+                     golden_poses: tuple[tuple[float, float, float], ...] | None = None,
+                     stated_error_m: float = 0.1, hog_mb: int = 0, hang: bool = False) -> Path:
+    """A 'dense_image' model: xy = sum(image) * gain + bias (on the court for any twin frame, and within a
+    few cm of `xy` on twin frames: sum(image) is a few thousand dot pixels).
 
+    Its golden inputs (PATH with suffix .golden.npz, pushed beside it) are twin frames at `golden_poses`,
+    by default three headings at `xy`, where the model is right; elsewhere it is wrong by the distance.
+    stated_error_m: the accuracy its manifest states on them.
     graph_rows: the graph's input height when it must differ from the manifest's (280).
     nan: the gain is NaN, so every output is NaN.
     corrupt_after_manifest: a bias changed after the manifest recorded the weights' sha256.
+    hog_mb: each run also fills (and sums, times 0) a tensor of this many MB.
+    hang: each run also counts through a loop of 10^12 steps (it never answers).
     """
     rows = HEIGHT - CROP_TOP
     graph_shape = [1, graph_rows or rows, WIDTH]
@@ -92,6 +114,36 @@ def tiny_paper_model(path: Path, name: str, xy: tuple[float, float] = (1.0, 0.5)
              helper.make_node("Mul", ["total_2d", "gain"], ["scaled"]),
              helper.make_node("Add", ["scaled", "bias"], ["xy"])]
     inits.append(numpy_helper.from_array(np.array([1, 1], np.int64), "one_by_one"))
+    final_bias = "bias"
+    nodes.pop()  # Add(scaled, bias) comes last, after whatever the knobs put into the bias
+    if hog_mb:  # the bias plus 0 * the sum of a hog_mb tensor of ones
+        inits += [numpy_helper.from_array(np.array([hog_mb * 2**20 // 4], np.int64), "hog_shape"),
+                  numpy_helper.from_array(np.zeros((1, 2), np.float32), "zero")]
+        nodes += [helper.make_node("ConstantOfShape", ["hog_shape"], ["hog"],
+                                   value=numpy_helper.from_array(np.array([1.0], np.float32))),
+                  helper.make_node("ReduceSum", ["hog"], ["hog_sum"], keepdims=0),
+                  helper.make_node("Mul", ["zero", "hog_sum"], ["nothing"]),
+                  helper.make_node("Add", [final_bias, "nothing"], ["hogged_bias"])]
+        final_bias = "hogged_bias"
+    if hang:  # the bias plus 0 * the count of a loop of 10^12 steps
+        body = helper.make_graph(
+            [helper.make_node("Identity", ["cond_in"], ["cond_out"]),
+             helper.make_node("Add", ["count_in", "one"], ["count_out"])],
+            "spin", [helper.make_tensor_value_info("i", TensorProto.INT64, []),
+                     helper.make_tensor_value_info("cond_in", TensorProto.BOOL, []),
+                     helper.make_tensor_value_info("count_in", TensorProto.FLOAT, [])],
+            [helper.make_tensor_value_info("cond_out", TensorProto.BOOL, []),
+             helper.make_tensor_value_info("count_out", TensorProto.FLOAT, [])],
+            [numpy_helper.from_array(np.array(1.0, np.float32), "one")])
+        inits += [numpy_helper.from_array(np.array(10**12, np.int64), "trips"),
+                  numpy_helper.from_array(np.array(True), "keep_going"),
+                  numpy_helper.from_array(np.array(0.0, np.float32), "count0"),
+                  numpy_helper.from_array(np.zeros((1, 2), np.float32), "zero2")]
+        nodes += [helper.make_node("Loop", ["trips", "keep_going", "count0"], ["count"], body=body),
+                  helper.make_node("Mul", ["zero2", "count"], ["spun_zero"]),
+                  helper.make_node("Add", [final_bias, "spun_zero"], ["spun_bias"])]
+        final_bias = "spun_bias"
+    nodes.append(helper.make_node("Add", ["scaled", final_bias], ["xy"]))
     graph = helper.make_graph(nodes, "tiny_paper",
                               [helper.make_tensor_value_info("image", TensorProto.FLOAT, graph_shape)],
                               [helper.make_tensor_value_info("xy", TensorProto.FLOAT, [1, 2])], inits)
@@ -103,11 +155,13 @@ def tiny_paper_model(path: Path, name: str, xy: tuple[float, float] = (1.0, 0.5)
                         tensors=[TensorSpec(name="image", dtype="float32", shape=[1, rows, WIDTH])]),
         preprocessing=PreprocessSpec(frame_width=WIDTH, frame_height=HEIGHT, crop_top=CROP_TOP),
         court=COURT, camera=CAMERA, outputs=[OutputSpec(name="xy", components=["x", "y"], units=["m", "m"])])
-    attach_manifest(model, manifest)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    poses = golden_poses or ((xy[0], xy[1], 0.0), (xy[0], xy[1], 2.1), (xy[0], xy[1], -2.1))
+    golden = write_golden(sidecar_path(path), list(twin_golden(tuple(poses))), stated_error_m, None)
+    attach_manifest(model, manifest.model_copy(update={"golden": golden}))
     if corrupt_after_manifest:
         bias = next(t for t in model.graph.initializer if t.name == "bias")
         bias.CopyFrom(numpy_helper.from_array(np.array([[xy[0] + 0.25, xy[1]]], np.float32), "bias"))
-    path.parent.mkdir(parents=True, exist_ok=True)
     onnx.save(model, str(path))
     return path
 
@@ -155,3 +209,17 @@ def run_model_cli(config: Path, *args: str) -> tuple[int, dict, str]:
                           capture_output=True, text=True, timeout=120)
     assert done.stdout, done.stderr
     return done.returncode, json.loads(done.stdout), done.stderr
+
+
+def shuffled_package(out_dir: Path, name: str) -> Path:
+    """The bundled package with its floor table's rows shuffled, the manifest rewritten to match (so its
+    weights sha256 is consistent): a well-formed package whose answers are wrong."""
+    out_dir = relabelled_package(out_dir, name)
+    model = onnx.load(str(out_dir / "model.onnx"))
+    table = next(t for t in model.graph.initializer if t.name == "floor_table")
+    rows = numpy_helper.to_array(table).copy()
+    np.random.default_rng(16).shuffle(rows)
+    table.CopyFrom(numpy_helper.from_array(rows, "floor_table"))
+    attach_manifest(model, read_manifest(out_dir / "model.onnx"))
+    onnx.save(model, str(out_dir / "model.onnx"))
+    return out_dir

@@ -137,7 +137,8 @@ def test_swap_under_30fps_loses_no_frame(robot: dict, frames: TwinFrames) -> Non
     # No frame is lost. The stage keeps one pending frame per input (latest-only), so a frame is lost only
     # if the worker is busy for a whole frame period (33 ms) when the next one arrives. Tracking takes a
     # few ms per frame; storing, validating, loading and warming the new model happen on the control
-    # thread (its golden frames were rendered at start-up, so it never holds the GIL for long); the swap itself is one reference assignment between two frames, and the new model tracks
+    # thread, validation in a niced child process (the stage only loads the validated model and runs its
+    # golden inputs once to warm it up); the swap itself is one reference assignment between two frames, and the new model tracks
     # on from the last pose instead of starting a global search. So every seq gets its pose.
     missing = sorted(set(published) - set(poses))
     first_new = min((s for s, p in poses.items() if p.model_name == "swapped"), default=None)

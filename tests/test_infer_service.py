@@ -4,15 +4,25 @@ models, so every push here is signed with the test's key unless the test is abou
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Any, Iterator
 
 import pytest
 from buskit import BusClient, free_port, start_router, start_stage, write_config
-from infer_models import TwinFrames, bundled_default, request_pose, run_model_cli, tiny_paper_model, truncated_copy
+from infer_models import (
+    TwinFrames,
+    bundled_default,
+    request_pose,
+    run_model_cli,
+    shuffled_package,
+    tiny_paper_model,
+    truncated_copy,
+)
 
 from courtloc.common.messages import Pose
 from courtloc.common.signing import generate_signing_key, sign_model
+from courtloc.lab.golden_build import GOLDEN_POSES
 from courtloc.security.pki import write_signing_keys
 from courtloc.services.infer.store import INCOMING, ModelStore
 
@@ -36,6 +46,7 @@ class Robot:
 store = "{self.store_dir}"
 require_signature = true
 signing_public_key = "{tmp / 'sign.pub'}"
+validation_timeout_s = 20
 """)
         self.client = BusClient(self.port)
         self.client.subscribe("infer/pose")
@@ -108,6 +119,22 @@ def _bad_model(robot: Robot, case: str) -> Path:
         return path
     if case == "unsigned":
         return tiny_paper_model(robot.tmp / case / "model.onnx", case)
+    if case == "constant_answer":  # always (0.5, 0.5); its golden frames are elsewhere
+        return robot.signed_tiny(case, xy=(0.5, 0.5), golden_poses=GOLDEN_POSES)
+    if case == "states_meters":  # the same, but its manifest claims only 5 m
+        return robot.signed_tiny(case, xy=(0.5, 0.5), golden_poses=GOLDEN_POSES, stated_error_m=5.0)
+    if case == "shuffled_floor_table":
+        folder = shuffled_package(robot.tmp / case, case)
+        sign_model(folder / "model.onnx", robot.key)
+        return folder
+    if case == "no_golden_inputs":
+        path = robot.signed_tiny(case)
+        path.with_suffix(".golden.npz").unlink()
+        return path
+    if case == "memory_hog":
+        return robot.signed_tiny(case, hog_mb=1600)
+    if case == "hangs":
+        return robot.signed_tiny(case, hang=True)
     assert case == "tampered"
     path = robot.signed_tiny(case)
     tiny_paper_model(path, case, xy=(3.0, 2.0))  # a valid model, but not the one that was signed
@@ -122,6 +149,12 @@ def _bad_model(robot: Robot, case: str) -> Path:
     ("name_outside_the_store", "is not a plain name"),
     ("unsigned", "signature: cannot read model signature"),
     ("tampered", "signature: model content does not match"),
+    ("constant_answer", "m > 0.1 m (stated by the manifest)"),
+    ("states_meters", "m > 0.25 m (deployment limit max_golden_position_error_m)"),
+    ("shuffled_floor_table", "golden frame 0 at (-2.50, 1.00, 3.00)"),
+    ("no_golden_inputs", "golden inputs: package part 'golden' is missing"),
+    ("memory_hog", "memory: the candidate needs more than the validation limit of 1024 MB"),
+    ("hangs", "validation did not finish within 20 s"),
 ])
 def test_bad_model_is_refused_while_the_old_one_serves(robot: Robot, case: str, reason: str) -> None:
     serving = robot.pose()
@@ -133,6 +166,21 @@ def test_bad_model_is_refused_while_the_old_one_serves(robot: Robot, case: str, 
                                                                                serving.model_version)
     assert robot.stored() == stored, "a refused model left a version in the store"
     assert not any((robot.store_dir / INCOMING).iterdir()), "a refused upload was left behind"
+    if case in ("constant_answer", "states_meters"):  # the numbers given are the frame's truth and answer
+        found = re.search(r"golden frame \d+ at \(([-\d.]+), ([-\d.]+), [-\d.]+\) answered \(([-\d.]+), "
+                          r"([-\d.]+)\): position error ([\d.]+) m", reply["reason"])
+        assert found, reply["reason"]
+        tx, ty, x, y, error = (float(v) for v in found.groups())
+        assert (tx, ty, 0.0) in [(p[0], p[1], 0.0) for p in GOLDEN_POSES]
+        assert abs(x - 0.5) < 0.1 and abs(y - 0.5) < 0.1  # the constant model's answer
+        assert error == pytest.approx(math.hypot(x - tx, y - ty), abs=0.01)  # to print precision
+    if case == "memory_hog":  # the 1.6 GB were never allocated by the stage itself
+        assert _peak_rss_mb(robot.infer.pid) < 1024
+
+
+def _peak_rss_mb(pid: int) -> float:
+    with open(f"/proc/{pid}/status", encoding="ascii") as status:
+        return next(int(line.split()[1]) for line in status if line.startswith("VmHWM:")) / 1024
 
 
 def test_activate_rollback_and_shadow(robot: Robot) -> None:

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from courtloc.common.control import FileSpec
-from courtloc.services.infer.store import ModelRef, ModelStore, StoreError
+from courtloc.services.infer.store import ActiveRecord, ModelRef, ModelStore, StoreError
 from courtloc.services.infer.uploads import UploadError, Uploads
 
 
@@ -81,3 +81,83 @@ def test_upload_limits(tmp_path: Path) -> None:
         Uploads(ModelStore(tmp_path), 100).begin([_spec("other.bin", b"x")])
     with pytest.raises(ValueError):
         FileSpec(path="../escape", size=1, sha256="0" * 64)
+
+
+def test_history_is_bounded_and_keeps_the_rollback_order(tmp_path: Path) -> None:
+    from courtloc.services.infer.store import HISTORY_LIMIT
+
+    store = ModelStore(tmp_path / "store")
+    refs = [store.add_folder(_package(tmp_path / f"p{i}", bytes([i])), f"m{i % 20}").ref for i in range(40)]
+    for _ in range(3):
+        for ref in refs:
+            store.set_active(ref)
+    history = store.record().history
+    assert len(history) == HISTORY_LIMIT
+    assert len(set(history)) == len(history)
+    assert history == refs[-1 - HISTORY_LIMIT:-1], "the newest earlier models, oldest first"
+    assert store.rollback() == refs[-2]
+    assert store.record().active == refs[-2]
+
+
+def test_a_legacy_record_moves_out_of_the_names_namespace(tmp_path: Path) -> None:
+    store = ModelStore(tmp_path / "store")
+    ref = store.add_folder(_package(tmp_path / "a"), "loc").ref
+    (tmp_path / "store" / "active.json").write_text(ActiveRecord(active=ref).model_dump_json())
+    reopened = ModelStore(tmp_path / "store")
+    assert reopened.record().active == ref
+    assert not (tmp_path / "store" / "active.json").exists()
+    # and now a model may be called like the old record
+    other = reopened.add_folder(_package(tmp_path / "b"), "active.json").ref
+    reopened.set_active(other)
+    assert ModelStore(tmp_path / "store").record().active == other
+
+
+@pytest.mark.parametrize("name", [".", "..", ".files.json", "a/b", "x" * 300, "", "-x"])
+def test_one_naming_rule_for_pushed_files(tmp_path: Path, name: str) -> None:
+    uploads = Uploads(ModelStore(tmp_path), 1 << 20)
+    with pytest.raises(UploadError, match="is not a plain name"):
+        uploads.begin([_spec("model.onnx", b"m"), FileSpec.model_construct(path=name, size=1, sha256="0" * 64)])
+    assert not any((tmp_path / ".incoming").iterdir())
+
+
+def _package_with_part(tmp_path: Path, court_file: str) -> Path:
+    """The bundled package with its manifest's court_file changed (sha256 unchanged)."""
+    import shutil
+
+    from courtloc.localizer.manifest import read_manifest, write_manifest
+    from courtloc.services.infer.service import bundled_default
+
+    folder = tmp_path / "pkg"
+    shutil.copytree(bundled_default(), folder)
+    manifest = read_manifest(folder / "model.onnx")
+    write_manifest(folder / "model.onnx",
+                   manifest.model_copy(update={"extra": {**manifest.extra, "court_file": court_file}}))
+    return folder
+
+
+def test_package_parts_resolve_inside_the_folder_with_one_error_text(tmp_path: Path) -> None:
+    from courtloc.localizer.manifest import ManifestError
+    from courtloc.localizer.package import load_package
+
+    cases = {}
+    for case in ("absolute", "dotdot", "symlink", "missing", "wrong"):
+        case_dir = tmp_path / case
+        case_dir.mkdir()
+        if case == "absolute":
+            folder = _package_with_part(case_dir, str(case_dir / "pkg" / "court.json"))
+        elif case == "dotdot":
+            folder = _package_with_part(case_dir, "../pkg/court.json")
+        elif case == "symlink":
+            folder = _package_with_part(case_dir, "link.json")
+            (case_dir / "court-elsewhere.json").write_bytes((folder / "court.json").read_bytes())
+            (folder / "link.json").symlink_to(case_dir / "court-elsewhere.json")
+        elif case == "missing":
+            folder = _package_with_part(case_dir, "nothere.json")
+        else:
+            folder = _package_with_part(case_dir, "camera.json")  # exists, another part's content
+        with pytest.raises(ManifestError) as caught:
+            load_package(folder)
+        cases[case] = str(caught.value)
+    assert len(set(cases.values())) == 1, cases
+    assert str(tmp_path) not in next(iter(cases.values())), "the reply names a path of the robot"
+    assert load_package(_package_with_part(tmp_path / "ok", "court.json")).court is not None

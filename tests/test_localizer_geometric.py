@@ -149,7 +149,7 @@ def test_package_with_a_foreign_part_is_refused(package, tmp_path):
     court = json.loads((copy / "court.json").read_text())
     court["lines"][0]["width"] = 0.2
     (copy / "court.json").write_text(json.dumps(court))
-    with pytest.raises(ManifestError, match="court.json"):
+    with pytest.raises(ManifestError, match="package part 'court' is missing or is not the file"):
         load_predictor(copy)
 
 

@@ -20,6 +20,9 @@ def register_export(export_sub: argparse._SubParsersAction) -> None:
     export.add_argument("--version", type=positive_int, default=1)
     export.add_argument("--court", default="seed-gazebo")
     export.add_argument("--camera", default="seed-gazebo")
+    export.add_argument("--golden-error-m", type=positive_float, default=None,
+                        help="accuracy the manifests state on the golden inputs (default: the exported graph's "
+                             "worst golden error plus a quarter, rounded up to 5 cm)")
     export.set_defaults(func=_export)
 
 
@@ -84,7 +87,8 @@ def _export(args: argparse.Namespace) -> int:
     _require_file(args.weights, "weights")
     from courtloc.training.export import export_paper  # needs torch: the train extra
 
-    written = export_paper(args.weights, args.out, args.graphs, args.name, args.version, args.court, args.camera)
+    written = export_paper(args.weights, args.out, args.graphs, args.name, args.version, args.court, args.camera,
+                           args.golden_error_m)
     for kind, path in written.items():
         print(f"{kind}: {path}")
     return 0

@@ -1,4 +1,6 @@
-"""Export a trained paper network (OUT/model.pt) to its dense and sparse ONNX graphs, each with a manifest."""
+"""Export a trained paper network (OUT/model.pt) to its dense and sparse ONNX graphs, each with a manifest
+and its golden inputs beside it (NAME-KIND.golden.npz: twin frames of the court at known poses, pushed
+with the model as golden.npz)."""
 from __future__ import annotations
 
 import logging
@@ -9,6 +11,8 @@ import numpy as np
 import onnx
 import torch
 
+from courtloc.lab.golden_build import breaches, render_golden, write_golden
+from courtloc.localizer.golden import run_golden, sidecar_path
 from courtloc.localizer.manifest import (
     InputSpec,
     Manifest,
@@ -18,7 +22,10 @@ from courtloc.localizer.manifest import (
     attach_manifest,
     runtime_preprocessing,
 )
+from courtloc.localizer.predictor import PaperPredictor
 from courtloc.training import paper_onnx
+from courtloc.world.camera import load_camera
+from courtloc.world.court import load_court
 
 log = logging.getLogger(__name__)
 
@@ -84,13 +91,50 @@ def paper_manifest(kind: str, summary: dict, height: int, width: int, crop_top: 
     )
 
 
+def _golden_frames(court: str, camera: str, width: int, height: int):  # noqa: ANN202 - list[GoldenFrame] | None
+    """Twin frames for the golden inputs, or None when the camera's frames are not the network's input size."""
+
+    cam = load_camera(camera)
+    if (cam.width, cam.height) != (width, height):
+        log.warning("no golden inputs: camera %s gives %dx%d frames, the network takes %dx%d; a robot will "
+                    "refuse this model", camera, cam.width, cam.height, width, height)
+        return None
+    return render_golden(load_court(court), cam)
+
+
+def stated_accuracy(errors: list[float], step_m: float = 0.05) -> float:
+    """What an export states when not told: its worst golden error plus a quarter, rounded up to 5 cm."""
+    worst = max(errors)
+    if not np.isfinite(worst):
+        raise ValueError("the exported graph gives a non-finite pose on its golden inputs")
+    return float(np.ceil(worst * 1.25 / step_m) * step_m) or step_m
+
+
+def _attach_golden(model: onnx.ModelProto, manifest: Manifest, path: Path, frames, golden_error_m: float | None) -> Manifest:  # noqa: ANN001
+    """Save the golden frames beside `path` and name them, with the accuracy stated on them, in `manifest`."""
+
+    attach_manifest(model, manifest)
+    onnx.save(model, str(path))
+    run = run_golden(PaperPredictor(path), frames)
+    limit = golden_error_m if golden_error_m is not None else stated_accuracy(run.position_error_m)
+    golden = write_golden(sidecar_path(path), frames, limit, None)
+    problems = breaches(run, golden)
+    if problems:
+        raise ValueError(f"{path}: the exported graph misses the accuracy it states: " + "; ".join(problems))
+    log.info("%s: golden position error max %.3f m, stated %.2f m", path.name, max(run.position_error_m), limit)
+    return manifest.model_copy(update={"golden": golden})
+
+
 def export_paper(weights_file: Path, out_dir: Path, kinds: Iterable[str] = ("dense", "sparse"),
                  name: str = "paper-mlp", version: int = 1, court: str = "seed-gazebo",
-                 camera: str = "seed-gazebo") -> dict[str, Path]:
+                 camera: str = "seed-gazebo", golden_error_m: float | None = None) -> dict[str, Path]:
+    """golden_error_m: the accuracy the manifests state on the golden inputs (default: `stated_accuracy`
+    of what the exported graph achieves on them)."""
     state = load_weights(weights_file)
     weights = {k: np.asarray(v, dtype=np.float32) for k, v in state["weights"].items()}
     height, width = state["input_shape"]
     out_dir.mkdir(parents=True, exist_ok=True)
+    frames = _golden_frames(court, camera, width, height + state["crop_top"])
     written = {}
     for kind in kinds:
         if kind not in ("dense", "sparse"):
@@ -98,8 +142,10 @@ def export_paper(weights_file: Path, out_dir: Path, kinds: Iterable[str] = ("den
         model = paper_onnx.build_dense(weights, height, width) if kind == "dense" else paper_onnx.build_sparse(weights)
         manifest = paper_manifest(kind, state["summary"], height, width, state["crop_top"], name, version, court,
                                   camera)
-        attach_manifest(model, manifest)
         path = out_dir / f"{name}-{kind}.onnx"
+        if frames is not None:
+            manifest = _attach_golden(model, manifest, path, frames, golden_error_m)
+        attach_manifest(model, manifest)
         onnx.save(model, str(path))
         log.info("wrote %s", path)
         written[kind] = path

@@ -45,9 +45,23 @@ class InferConfig(BaseModel):
     # for comparison; its exact sparse graph (~4 ms) is the one to serve. Tighten it on the robot.
     golden_latency_budget_ms: float = Field(default=200.0, gt=0,
                                             description="a candidate slower than this on golden inputs is refused")
+    # A pose reported valid and wrong is the worst failure: whatever accuracy a manifest states, a candidate
+    # further off than this on its golden inputs is refused (the paper network needs these raised to serve).
+    max_golden_position_error_m: float = Field(default=0.25, gt=0,
+                                               description="refuse a candidate whose golden position error exceeds this")
+    max_golden_yaw_error_deg: float = Field(default=5.0, gt=0,
+                                            description="refuse a candidate whose golden yaw error exceeds this")
+    golden_min_frames: int = Field(default=3, ge=1, description="a package must ship at least this many golden frames")
+    # Validation runs in a child process: its address space may grow this much over the child's own
+    # (python + onnxruntime) before allocations fail, and it is killed after validation_timeout_s.
+    validation_memory_mb: float = Field(default=1024.0, gt=0,
+                                        description="memory a candidate may take while it is validated")
+    validation_timeout_s: float = Field(default=60.0, gt=0, description="a candidate validating longer is refused")
     on_court_margin_m: float = Field(default=0.5, ge=0, description="a pose further off the court is not valid")
     require_signature: bool = Field(default=False, description="refuse pushed models without a valid signature")
     signing_public_key: Path | None = None
     max_upload_mb: float = Field(default=2048.0, gt=0)
     fusion: FusionConfig = Field(default_factory=FusionConfig,
                                  description="odometry fusion in the tracker (off: shooter_bridge/odometry is ignored)")
+    max_open_uploads: int = Field(default=2, ge=1, description="a new push evicts the least recently written beyond this")
+    upload_ttl_h: float = Field(default=24.0, gt=0, description="an upload without a new byte for this long is removed")

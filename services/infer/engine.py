@@ -1,38 +1,26 @@
 """Loading a stored model into a ready-to-serve predictor, and refusing the ones that must not serve.
 
-Validation runs off the hot path, before a swap: the manifest is readable and its weights' sha256
-matches, the graph's signature matches the manifest, a signature file verifies (when required), and
-golden inputs give finite poses on the court within the latency budget. Only then is it warmed up.
+Validation runs off the hot path, before a swap, in a child process with a memory limit and a
+deadline (services/infer/sandbox.py runs services/infer/validation.py there). Only a model that passed
+is loaded here (its file parsed once) and warmed up on the same golden inputs.
 """
 from __future__ import annotations
 
 import logging
-import math
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-import onnxruntime
-from onnx.helper import tensor_dtype_to_np_dtype
-
-from courtloc.common.signing import ModelSignatureError, signature_path, verify_model
-from courtloc.localizer.manifest import Manifest, ManifestError
-from courtloc.localizer.model_file import ModelFile
-from courtloc.localizer.predictor import Predictor, load_predictor
-from courtloc.services.infer.config import InferConfig, providers_for
-from courtloc.services.infer.golden import GoldenSets
+from courtloc.localizer.golden import run_golden
+from courtloc.localizer.manifest import Manifest
+from courtloc.localizer.predictor import Predictor
+from courtloc.services.infer.config import InferConfig
+from courtloc.services.infer.golden import package_golden
+from courtloc.services.infer.sandbox import validate_in_child
 from courtloc.services.infer.store import ModelRef, StoredModel
+from courtloc.services.infer.validation import ModelRefused, predictor_for, read_model_file
 from courtloc.world.court import Court
 
 log = logging.getLogger(__name__)
-
-_PROVIDER_NAMES = {"tensorrt": "TensorrtExecutionProvider", "cuda": "CUDAExecutionProvider",
-                   "cpu": "CPUExecutionProvider"}
-
-
-class ModelRefused(RuntimeError):
-    """A candidate that failed validation; the message is the reason given back to the pusher."""
 
 
 @dataclass
@@ -51,104 +39,25 @@ class LoadedModel:
         return self.predictor.court
 
 
-def available_providers(preferred: list[str]) -> list[str]:
-    installed = set(onnxruntime.get_available_providers())
-    chosen = [_PROVIDER_NAMES[p] for p in preferred if _PROVIDER_NAMES[p] in installed]
-    return chosen or ["CPUExecutionProvider"]
-
-
-def is_on_court(court: Court, x: float, y: float, margin: float) -> bool:
-    return bool(court.contains(x, y, margin=margin))
-
-
-def load_model(stored: StoredModel, config: InferConfig, golden: GoldenSets | None,
+def load_model(stored: StoredModel, config: InferConfig, validate: bool = False,
                pushed: bool = False) -> LoadedModel:
-    """Load and (when `golden` is given) validate; raises ModelRefused with the reason.
+    """Load, after validating it in a bounded child process when `validate`; raises ModelRefused with the reason.
 
     `pushed`: the model is entering the store, so its signature is checked (when required). Versions
     already in the store were checked when they came in, and the bundled default ships unsigned.
     """
-    try:
-        model_file = ModelFile.read(stored.model_path)  # the one parse of the graph: every check below uses it
-    except ManifestError as exc:
-        raise ModelRefused(f"manifest: {exc}") from None
-    if golden is not None:
-        if pushed:
-            _check_signature_file(stored.folder, config)
-        check_graph_signature(model_file)
-        try:
-            model_file.verify_weights()
-        except ManifestError as exc:
-            raise ModelRefused(f"sha256: {exc}") from None
-        except Exception as exc:
-            raise ModelRefused(f"weights unreadable: {type(exc).__name__}: {exc}") from None
-    try:
-        predictor = load_predictor(model_file,
-                                   providers=available_providers(providers_for(config, model_file.manifest.input.kind)),
-                                   threads=config.threads)
-    except Exception as exc:  # onnxruntime raises its own types for bad graphs and wrong shapes
-        raise ModelRefused(f"cannot load: {type(exc).__name__}: {exc}") from None
-    loaded = LoadedModel(stored.ref, predictor, model_file.manifest.input.kind)
-    if golden is not None:
-        _run_golden(loaded, config, golden)
+    if validate:
+        validate_in_child(stored.folder, config, pushed)
+    model_file = read_model_file(stored.model_path)  # the one parse of the graph in this process
+    loaded = LoadedModel(stored.ref, predictor_for(model_file, config), model_file.manifest.input.kind)
+    if validate:
+        _warm_up(loaded, stored.folder)
     return loaded
 
 
-def check_graph_signature(model: ModelFile) -> None:
-    """The graph's inputs are exactly the manifest's tensors: names, element types and fixed dimensions."""
-    manifest = model.manifest
-    graph = model.proto.graph
-    weights = {t.name for t in graph.initializer}
-    inputs = {i.name: i for i in graph.input if i.name not in weights}
-    wanted = {t.name: t for t in manifest.input.tensors}
-    if set(inputs) != set(wanted):
-        raise ModelRefused(f"graph inputs {sorted(inputs)} do not match the manifest's {sorted(wanted)}")
-    for name, spec in wanted.items():
-        tensor_type = inputs[name].type.tensor_type
-        dtype = tensor_dtype_to_np_dtype(tensor_type.elem_type).name
-        dims = [d.dim_value if d.HasField("dim_value") else d.dim_param for d in tensor_type.shape.dim]
-        fixed_mismatch = any(isinstance(want, int) and isinstance(have, int) and want != have
-                             for want, have in zip(spec.shape, dims))
-        if dtype != spec.dtype or len(dims) != len(spec.shape) or fixed_mismatch:
-            raise ModelRefused(f"input {name!r} is {dtype}{dims}, the manifest says {spec.dtype}{spec.shape}")
-
-
-def _check_signature_file(folder: Path, config: InferConfig) -> None:
-    if not config.require_signature:
-        return
-    if config.signing_public_key is None:
-        raise ModelRefused("signature required but no signing_public_key is configured")
-    model = folder / "model.onnx"
+def _warm_up(model: LoadedModel, folder: Path) -> None:
+    """The golden inputs once through the session that will serve: its first runs are the slow ones."""
     try:
-        verify_model(model, signature_path(model), config.signing_public_key)
-    except ModelSignatureError as exc:
-        raise ModelRefused(f"signature: {exc}") from None
-
-
-def _run_golden(model: LoadedModel, config: InferConfig, golden: GoldenSets) -> None:
-    manifest = model.manifest
-    try:
-        frames = golden.get(manifest.court, manifest.camera)
-    except Exception as exc:
-        raise ModelRefused(f"no golden inputs for court {manifest.court!r} / camera {manifest.camera!r}: {exc}") \
-            from None
-    timings = []
-    # The first call warms the session up from a cold start (no previous pose) and is not timed. The
-    # timed calls run as frames are served at frame rate, tracking from a previous pose (a tracking
-    # model's cold-start search is many times slower and happens once, not per frame).
-    for previous, frame in [(None, frames[0]), *((f.pose, f) for f in frames)]:
-        start = time.perf_counter()
-        try:
-            pred = model.predictor.predict(frame.hits, frame.width, frame.height, previous=previous)
-        except Exception as exc:
-            raise ModelRefused(f"golden input failed: {type(exc).__name__}: {exc}") from None
-        timings.append(time.perf_counter() - start)
-        values = [pred.x, pred.y] + ([] if pred.yaw is None else [pred.yaw])
-        if not all(math.isfinite(v) for v in values):
-            raise ModelRefused(f"golden input gave a non-finite pose {values}")
-        if not is_on_court(model.court, pred.x, pred.y, config.on_court_margin_m):
-            raise ModelRefused(f"golden input gave a pose off the court ({pred.x:.2f}, {pred.y:.2f})")
-    median_ms = float(np.median(timings[1:])) * 1e3
-    if median_ms > config.golden_latency_budget_ms:
-        raise ModelRefused(f"too slow: {median_ms:.1f} ms per frame > budget {config.golden_latency_budget_ms} ms")
-    log.info("model %s validated: golden median %.2f ms", model.ref, median_ms)
+        run_golden(model.predictor, package_golden(folder, model.manifest))
+    except Exception as exc:  # validated in the child a moment ago: only a changed file gets here
+        raise ModelRefused(f"golden inputs failed after validation: {type(exc).__name__}: {exc}") from None

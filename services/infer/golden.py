@@ -1,54 +1,40 @@
-"""Golden inputs for validating a candidate model: twin frames of its court, seen by its camera,
-at known poses, through the real preprocess stage. Made once per (court, camera) and kept."""
+"""The golden inputs a candidate is validated on: the ones its own package ships (made when it was
+built, see localizer/golden_build.py), and the accuracy it must show on them. Nothing is rendered here."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from pathlib import Path
 
-import numpy as np
-
-from courtloc.scan.config import PreprocessConfig
-from courtloc.scan.preprocessor import Preprocessor
-from courtloc.world.camera import load_camera
-from courtloc.world.court import load_court
-
-# Poses spread over the court, facing lines (x, y, yaw); every court we ship contains them.
-GOLDEN_POSES: tuple[tuple[float, float, float], ...] = (
-    (-2.5, 1.0, 3.0), (2.0, -1.5, 0.4), (3.5, 1.8, -0.3), (-1.0, -2.0, 2.4), (0.8, 0.5, 1.57),
-)
+from courtloc.localizer.golden import GoldenError, GoldenFrame, load_golden
+from courtloc.localizer.manifest import Manifest, ManifestError, package_part
+from courtloc.services.infer.config import InferConfig
 
 
-@dataclass(frozen=True)
-class GoldenFrame:
-    hits: np.ndarray
-    width: int
-    height: int
-    pose: tuple[float, float, float]
+class GoldenUnavailable(ValueError):
+    """The package has no usable golden inputs."""
 
 
-class GoldenSets:
-    """Golden frames per (court, camera), rendered on first use."""
-
-    def __init__(self) -> None:
-        self._sets: dict[tuple[str, str], list[GoldenFrame]] = {}
-
-    def get(self, court_name: str, camera_name: str) -> list[GoldenFrame]:
-        key = (court_name, camera_name)
-        if key not in self._sets:
-            self._sets[key] = _render_golden(court_name, camera_name)
-        return self._sets[key]
-
-
-def _render_golden(court_name: str, camera_name: str) -> list[GoldenFrame]:
-    # The twin renders golden frames on the robot until packages ship their own golden inputs (issue 16).
-    from courtloc.sim.render import Renderer
-
-    # The twin renders golden frames on the robot until packages ship their own golden inputs (issue 16).
-
-    camera = load_camera(camera_name)
-    renderer = Renderer(load_court(court_name), camera)
-    preprocessor = Preprocessor(PreprocessConfig(frame_width=camera.width, frame_height=camera.height))
-    frames = []
-    for pose in GOLDEN_POSES:
-        image = renderer.render(pose)
-        frames.append(GoldenFrame(preprocessor.process(image), camera.width, camera.height, pose))
+def package_golden(folder: Path, manifest: Manifest) -> list[GoldenFrame]:
+    spec = manifest.golden
+    if spec is None:
+        raise GoldenUnavailable("the manifest names none (build the package with a current `courtloc localizer "
+                                "build` or `courtloc export`)")
+    try:
+        frames = load_golden(package_part(folder, spec.file, spec.sha256, "golden"))
+    except (ManifestError, GoldenError) as exc:
+        raise GoldenUnavailable(str(exc)) from None
+    if len(frames) != spec.n_frames:
+        raise GoldenUnavailable(f"{len(frames)} frames in the file, the manifest says {spec.n_frames}")
     return frames
+
+
+def accuracy_limits(manifest: Manifest, config: InferConfig) -> tuple[tuple[float, str], tuple[float | None, str]]:
+    """(position limit m, where it comes from), (yaw limit deg or None, where it comes from): the tighter
+    of the manifest's stated accuracy and the deployment's limit."""
+    assert manifest.golden is not None
+    stated = manifest.golden
+    position = min((stated.max_position_error_m, "stated by the manifest"),
+                   (config.max_golden_position_error_m, "deployment limit max_golden_position_error_m"))
+    yaws = [(config.max_golden_yaw_error_deg, "deployment limit max_golden_yaw_error_deg")]
+    if stated.max_yaw_error_deg is not None:
+        yaws.append((stated.max_yaw_error_deg, "stated by the manifest"))
+    return position, min(yaws)

@@ -2,11 +2,14 @@
 
 Runs on the service's control thread; validation and loading happen here, never on the inference
 worker, and the worker only ever sees a complete, validated, warmed-up model.
+
+The store's record is written before the served model changes: if the record cannot be written (a
+full disk) the request is refused and nothing is swapped, and a crash after the write serves the
+recorded model on restart. So the served model and the record never disagree.
 """
 from __future__ import annotations
 
 import logging
-import re
 from typing import Protocol
 
 from courtloc.common.control import (
@@ -22,9 +25,10 @@ from courtloc.common.control import (
     Shadow,
 )
 from courtloc.localizer.manifest import ManifestError, read_manifest
-from courtloc.services.infer.engine import LoadedModel, ModelRefused
-from courtloc.services.infer.store import MODEL_NAME_PATTERN, ModelRef, ModelStore, StoredModel, StoreError
+from courtloc.services.infer.engine import LoadedModel
+from courtloc.services.infer.store import ModelRef, ModelStore, StoredModel, StoreError, check_name
 from courtloc.services.infer.uploads import UploadError, Uploads
+from courtloc.services.infer.validation import ModelRefused
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +64,7 @@ class ModelControl:
             if isinstance(body, ListModels):
                 return self._list()
             if isinstance(body, Activate):
-                name = body.name or self._active_name()
+                name = check_name(body.name or self._active_name(), "model name")
                 return self._activate(self.host.store.get(ModelRef(name=name, version=body.version)))
             if isinstance(body, Rollback):
                 return self._activate(self.host.store.get(self.host.store.rollback_target()), rollback=True)
@@ -88,31 +92,37 @@ class ModelControl:
         except Exception as exc:
             self.uploads.abort(body.upload_id)
             raise ModelRefused(f"not a readable ONNX model: {type(exc).__name__}: {exc}") from None
-        if not re.match(MODEL_NAME_PATTERN, name):
+        try:
+            check_name(name, "manifest name")
+        except StoreError as exc:
             self.uploads.abort(body.upload_id)
-            raise ModelRefused(f"manifest name {name!r} is not a plain name (letters, digits, '_', '.', '-')")
+            raise ModelRefused(str(exc)) from None
         # Validate in place, before the version exists in the store: a refused model leaves no trace.
         candidate = StoredModel(ModelRef(name=name, version=self.host.store.next_version(name)), folder)
         try:
             loaded = self.host.validate(candidate, pushed=True)
-        except ModelRefused:
+            stored = self.host.store.add_folder(folder, name, move=True)
+        except (ModelRefused, StoreError):
             self.uploads.abort(body.upload_id)
             raise
-        stored = self.host.store.add_folder(folder, name, move=True)
         loaded.ref = stored.ref
         if body.activate:
+            try:
+                self.host.store.set_active(stored.ref)
+            except StoreError:
+                self.host.store.remove(stored.ref)  # refused as a whole: no version that was never active
+                raise
             self.host.swap_in(loaded)
-            self.host.store.set_active(stored.ref)
         return ModelReply(ok=True, name=stored.ref.name, version=stored.ref.version,
                           reason="stored and active" if body.activate else "stored")
 
     def _activate(self, stored: StoredModel, rollback: bool = False) -> ModelReply:
         loaded = self.host.validate(stored)
-        self.host.swap_in(loaded)
         if rollback:
             self.host.store.rollback()
         else:
             self.host.store.set_active(stored.ref)
+        self.host.swap_in(loaded)
         return ModelReply(ok=True, name=stored.ref.name, version=stored.ref.version, reason="active")
 
     def _shadow(self, body: Shadow) -> ModelReply:
@@ -120,7 +130,8 @@ class ModelControl:
             reply = self.host.shadow_reply()
             self.host.start_shadow(None)
             return reply.model_copy(update={"reason": "shadow stopped"})
-        stored = self.host.store.get(ModelRef(name=body.name or self._active_name(), version=body.version))
+        name = check_name(body.name or self._active_name(), "model name")
+        stored = self.host.store.get(ModelRef(name=name, version=body.version))
         self.host.start_shadow(self.host.validate(stored))
         return ModelReply(ok=True, name=stored.ref.name, version=stored.ref.version, reason="shadow running")
 

@@ -19,12 +19,12 @@ from courtloc.localizer.predictor import GeometricPredictor
 from courtloc.localizer.tracking import Tracker
 from courtloc.models import bundled_package
 from courtloc.services.infer.config import InferConfig
-from courtloc.services.infer.engine import LoadedModel, ModelRefused, is_on_court, load_model
-from courtloc.services.infer.golden import GoldenSets
+from courtloc.services.infer.engine import LoadedModel, load_model
 from courtloc.services.infer.model_control import ModelControl
 from courtloc.services.infer.shadow import ShadowRunner
 from courtloc.services.infer.store import ModelRef, ModelStore, StoredModel
 from courtloc.services.infer.uploads import Uploads
+from courtloc.services.infer.validation import ModelRefused, is_on_court
 
 DEFAULT_MODEL_NAME = "default"
 
@@ -37,28 +37,19 @@ class InferService(Service):
         super().__init__(robot_id, zenoh_config)
         self.config = config
         self.store = ModelStore(config.store)
-        self.golden = GoldenSets()
         self.active: LoadedModel | None = None
         self.shadow: ShadowRunner | None = None
         self.tracker = Tracker()
         # Odometry fusion (localizer/odometry_fusion.py): None unless configured, then poses are as before.
         self.fusion = OdometryFusion(config.fusion) if config.fusion.enabled else None
         self.swaps = 0
-        self._control = ModelControl(self, Uploads(self.store, int(config.max_upload_mb * 2**20)))
+        self._control = ModelControl(self, Uploads(self.store, int(config.max_upload_mb * 2**20),
+                                                   max_open=config.max_open_uploads, ttl_s=config.upload_ttl_h * 3600))
 
     # ---- start-up ----------------------------------------------------------------------
     def on_start(self) -> None:
         self.active = self._load_active()
         self.log.info("serving model %s", self.active.ref)
-        self._prepare_golden(self.active)
-
-    def _prepare_golden(self, model: LoadedModel) -> None:
-        """Render the golden inputs of the serving model's court now, before frames flow: rendering them at
-        the first push would hold the GIL for tens of ms at a time while the worker serves frames."""
-        try:
-            self.golden.get(model.manifest.court, model.manifest.camera)
-        except Exception as exc:  # no golden set for this court: a push will be refused with the reason
-            self.record_error("model", f"no golden inputs for {model.ref}: {exc}")
 
     def _load_active(self) -> LoadedModel:
         """The store's active model; a fresh store gets the bundled default as version 1."""
@@ -68,12 +59,12 @@ class InferService(Service):
         stored = self.store.active()
         assert stored is not None
         try:
-            return load_model(stored, self.config, golden=None)
+            return load_model(stored, self.config)
         except ModelRefused as exc:
             # The active model was validated when it came in; if it is broken on disk now, roll back.
             self.record_error("model", f"active model {stored.ref} cannot load ({exc}); rolling back")
             target = self.store.rollback()
-            return load_model(self.store.get(target), self.config, golden=None)
+            return load_model(self.store.get(target), self.config)
 
     # ---- the hot path --------------------------------------------------------------------
     def on_message(self, topic: Topic, message: Edges | Odometry, delivery: Delivery) -> None:
@@ -155,7 +146,7 @@ class InferService(Service):
 
     # ModelHost, for ModelControl
     def validate(self, stored: StoredModel, pushed: bool = False) -> LoadedModel:
-        return load_model(stored, self.config, golden=self.golden, pushed=pushed)
+        return load_model(stored, self.config, validate=True, pushed=pushed)
 
     def swap_in(self, model: LoadedModel) -> None:
         old, self.active = self.active, model  # one reference assignment: the worker sees the old or the new model
