@@ -125,7 +125,7 @@ def _package_with_part(tmp_path: Path, court_file: str) -> Path:
     import shutil
 
     from courtloc.localizer.manifest import read_manifest, write_manifest
-    from courtloc.services.infer.service import bundled_default
+    from courtloc.models import bundled_package as bundled_default
 
     folder = tmp_path / "pkg"
     shutil.copytree(bundled_default(), folder)

@@ -94,13 +94,15 @@ def robot(tmp_path: Path) -> Iterator[Robot]:
 
 
 def _spec(name: str, data: bytes) -> FileSpec:
-    return FileSpec(path=name, size=len(data), sha256=hashlib.sha256(data).hexdigest())
+    # model_construct: a hostile client sends what it likes, the contract's own checks included
+    return FileSpec.model_construct(path=name, size=len(data), sha256=hashlib.sha256(data).hexdigest())
 
 
 @pytest.mark.parametrize("name", [".", "..", ".files.json", ".active.json", "x" * 300])
 def test_file_names_outside_the_rule_are_refused_with_the_rule(robot: Robot, name: str) -> None:
     reply = robot.models.request(PushBegin(files=[_spec("model.onnx", b"m"), _spec(name, b"z")]))
-    assert not reply.ok and "is not a plain name" in reply.reason, reply
+    # refused by the store's naming rule, or (longer than any name may be) by the contract's limit
+    assert not reply.ok and ("is not a plain name" in reply.reason or "at most 128" in reply.reason), reply
     assert "internal error" not in reply.reason
     assert not any((robot.store_dir / INCOMING).iterdir()), "a refused push left an upload behind"
     assert robot.recorded() == ("default", 1)

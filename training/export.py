@@ -22,6 +22,7 @@ from courtloc.localizer.manifest import (
     attach_manifest,
     runtime_preprocessing,
 )
+from courtloc.localizer.model_file import ModelFile
 from courtloc.localizer.predictor import PaperPredictor
 from courtloc.training import paper_onnx
 from courtloc.world.camera import load_camera
@@ -115,7 +116,7 @@ def _attach_golden(model: onnx.ModelProto, manifest: Manifest, path: Path, frame
 
     attach_manifest(model, manifest)
     onnx.save(model, str(path))
-    run = run_golden(PaperPredictor(path), frames)
+    run = run_golden(PaperPredictor(ModelFile.read(path)), frames)
     limit = golden_error_m if golden_error_m is not None else stated_accuracy(run.position_error_m)
     golden = write_golden(sidecar_path(path), frames, limit, None)
     problems = breaches(run, golden)
