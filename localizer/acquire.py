@@ -20,7 +20,10 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    track's prior that explains none of the hypotheses (a kidnap) is dropped; a start or pit prior stays.
    Without a prior, only a lone hypothesis is decided (never on a symmetric court).
 3. Confirmation. The decided hypothesis must be the one answer for `confirm_frames` frames in a row
-   with a valid fit; then the track starts there and the frame is valid. Until then every frame is
+   with a valid fit (`confirm_frames_tight` when a pose prior known to `tight_prior_m` decided: a wrong
+   basin that close to a known pose is what tracking risks anyway); each of those frames searches the
+   court again, and a frame that an invalid (unpinnable, e.g. only parallel lines) pose explains better
+   than every valid one confirms nothing. Then the track starts there and the frame is valid. Until then every frame is
    invalid with reason `ambiguous` (several hypotheses) or `searching` (none yet).
 Pure functions of the state the caller passes in, like motion.py.
 """
@@ -41,7 +44,8 @@ PriorSource = Literal["start", "pit", "track"]
 @dataclass(frozen=True)
 class Prior:
     """Where the robot is known to be. `pose` with `std_m` (and `yaw_std_rad`, None: heading unknown),
-    or only `half`. `t`: when it held, on the frames' clock (None: at the first frame that uses it)."""
+    or only `half`. `t`: when it held, on the frames' clock (None: at the first frame that uses it, less
+    `age_s`)."""
 
     source: PriorSource
     pose: np.ndarray | None = None
@@ -49,17 +53,18 @@ class Prior:
     yaw_std_rad: float | None = None
     half: Half | None = None
     t: float | None = None
+    age_s: float = 0.0  # how old it already was at the first frame that uses it (t None)
 
     def at(self, t: float | None) -> "Prior":
-        """The prior with its time set (the first frame that uses it) when it had none."""
-        return self if self.t is not None or t is None else Prior(self.source, self.pose, self.std_m,
-                                                                   self.yaw_std_rad, self.half, t)
+        """The prior with its time set (the first frame that uses it, minus its age) when it had none."""
+        if self.t is not None or t is None:
+            return self
+        return Prior(self.source, self.pose, self.std_m, self.yaw_std_rad, self.half, t - self.age_s)
 
 
 @dataclass(frozen=True)
 class Hypothesis:
-    """A tracked candidate pose and where it was first seen: the evidence compares a prior with the
-    origin (at the origin's time), so waiting does not wash a decision out."""
+    """A tracked candidate pose (and where it was first seen, for diagnostics)."""
 
     state: motion.MotionState
     origin: np.ndarray
@@ -79,6 +84,7 @@ class Acquiring:
     agreed: int = 0  # frames in a row the same decided hypothesis answered with a valid fit
     since_search: int = 0  # frames since the last global search
     decided_pose: np.ndarray | None = field(default=None, compare=False)
+    decided_t: float | None = None  # when the decision being confirmed was first made
 
 
 def _yaw_diff(a: float, b: float) -> float:
@@ -111,13 +117,15 @@ def in_half(pose: np.ndarray, half: Half, centre_margin_m: float) -> bool:
 class Decision:
     index: int | None  # the decided hypothesis, None: nothing decides
     explained: bool  # the prior explains at least one hypothesis (False: drop a lost track's prior)
+    tight: bool = False  # decided by a pose prior known to within `tight_prior_m` (needs less confirmation)
 
 
-def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None, cfg: AcquireConfig,
-           centre_margin_m: float) -> Decision:
-    """Which hypothesis the evidence picks (see the module's rule 2). `half`: the package's fixed half
-    ('half' symmetry mode), applied on top of the prior. A half is judged at the current pose (the robot
-    may leave the centre), a pose prior at each hypothesis's origin."""
+def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None, t: float | None,
+           cfg: AcquireConfig, centre_margin_m: float) -> Decision:
+    """Which hypothesis the evidence picks (see the module's rule 2) at time t, by the hypotheses' current
+    poses: all of them at one time, since a hypothesis tracked through a fast turn near the centre can
+    have swapped to its twin's basin. `half`: the package's fixed half ('half' symmetry mode), applied on
+    top of the prior."""
     poses = [h.pose for h in hypotheses]
     keep = list(range(len(poses)))
     if half is not None:
@@ -126,12 +134,13 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
     if prior is not None and prior.half is not None:
         keep = [i for i in keep if in_half(poses[i], prior.half, centre_margin_m)]
     if prior is not None and prior.pose is not None and keep:
-        d2 = {i: prior_distance2(prior, hypotheses[i].origin, hypotheses[i].origin_t, cfg) for i in keep}
+        d2 = {i: prior_distance2(prior, poses[i], t, cfg) for i in keep}
         inside = [i for i in keep if d2[i] <= cfg.prior_gate_chi2]
         if not inside:
             return Decision(None, explained=False)
         best = min(inside, key=d2.__getitem__)
         if all(0.5 * (d2[i] - d2[best]) >= cfg.decide_log_ratio for i in keep if i != best):
-            return Decision(best, explained)
+            age = 0.0 if t is None or prior.t is None else abs(t - prior.t)
+            return Decision(best, explained, tight=prior.std_m + cfg.motion_sigma_mps * age <= cfg.tight_prior_m)
         return Decision(None, explained)
     return Decision(keep[0] if len(keep) == 1 else None, explained)

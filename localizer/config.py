@@ -104,6 +104,9 @@ class AcquireConfig(BaseModel):
     drop_lost_frames: int = Field(3, ge=1, description="a hypothesis without a usable fit this many frames dies")
     confirm_frames: int = Field(3, ge=1, description="frames a decided hypothesis must answer valid before the "
                                 "track starts")
+    confirm_frames_tight: int = Field(1, ge=1, description="... when a pose prior within tight_prior_m decided")
+    tight_prior_m: float = Field(1.0, gt=0, description="a pose prior this well known (std, grown by its age) is "
+                                 "tight")
     research_frames: int = Field(15, ge=1, description="while undecided, search the court again this often")
     motion_sigma_mps: float = Field(1.0, gt=0, description="a pose prior's position std grows this much per second")
     yaw_sigma_rps: float = Field(1.5, gt=0, description="... and its heading std, radians per second")

@@ -86,6 +86,9 @@ class GeometricLocalizer:
         self.field = field or CourtField.from_court(court, self.config.field_resolution_m)
         self.geometry = HitGeometry(camera)
         self.search = CoarseSearch(self.field, court.area_half_extent_m, self.config.search)
+        # On a point-symmetric court every hypothesis has a twin that fits exactly as well: acquisition keeps
+        # both alive, whatever its tracking does to either.
+        self.symmetric = self.field.point_symmetric()
 
     def localize_points(self, floor_points: np.ndarray, previous: np.ndarray | None = None) -> LocalizeResult:
         """Pose from (N, 2) robot-frame floor points (NaN rows ignored). Points carry no pixels, hence no scan
@@ -163,7 +166,7 @@ class GeometricLocalizer:
             found, searched, blocked = self._search_hypotheses(hits, t)
             live += found
             since = 0
-        live = self._merge(live)
+        live = self._merge(self._with_twins(live))
         fitted = [res.fit.cost for res, h in live if h.state.lost == 0]
         if fitted:  # a hypothesis fitting clearly worse than the best one this frame dies
             limit = min(fitted) * acfg.tie_ratio + acfg.tie_abs
@@ -175,13 +178,16 @@ class GeometricLocalizer:
             res = self._answer(LocalizeResult(pose=fit.pose, fit=fit, mode="global"), fit.pose, invalid=True)
             return TrackStep(self._status(res, "searching"), acquire.Acquiring(prior, (), 0, since))
         half = cfg.half if cfg.symmetry == "half" else None
-        decision = acquire.decide(list(hypotheses), prior, half, acfg, cfg.centre_margin_m)
+        # While a decision is being confirmed the prior is judged at the time it was made: its spread growing
+        # frame by frame must not undo a decision the next frames only have to confirm.
+        t_eval = state.decided_t if state.agreed > 0 and state.decided_t is not None else t
+        decision = acquire.decide(list(hypotheses), prior, half, t_eval, acfg, cfg.centre_margin_m)
         if not decision.explained and prior is not None and prior.source == "track":
             prior = None  # the view contradicts the lost track's last pose (kidnap): it is no evidence
-            decision = acquire.decide(list(hypotheses), None, half, acfg, cfg.centre_margin_m)
+            decision = acquire.decide(list(hypotheses), None, half, t_eval, acfg, cfg.centre_margin_m)
         poses = [h.pose for h in hypotheses]
         if decision.index is None:
-            best = self._nearest(list(hypotheses), prior)
+            best = self._nearest(list(hypotheses), prior, t)
             res = self._answer(live[best][0], poses[best], invalid=True)
             res = LocalizeResult(pose=res.pose, fit=res.fit, mode=res.mode, status="ambiguous",
                                  alternatives=[p for i, p in enumerate(poses) if i != best])
@@ -190,12 +196,14 @@ class GeometricLocalizer:
         # The same hypothesis as last frame: within what a robot moves in a frame or two.
         same = state.decided_pose is not None and math.hypot(*(state.decided_pose[:2] - chosen.pose[:2])) <= 0.5
         agreed = (state.agreed + 1 if same else 1) if res.valid and not blocked else 0
-        if agreed >= acfg.confirm_frames and chosen.state.lost == 0:
+        needed = acfg.confirm_frames_tight if decision.tight else acfg.confirm_frames
+        if agreed >= needed and chosen.state.lost == 0:
             return TrackStep(LocalizeResult(pose=res.pose, fit=res.fit, mode="acquired"), chosen.state)
         others = [p for i, p in enumerate(poses) if i != decision.index]
         res = self._answer(res, chosen.pose, invalid=True)
         res = LocalizeResult(pose=res.pose, fit=res.fit, mode=res.mode, alternatives=others, status="confirming")
-        return TrackStep(res, acquire.Acquiring(prior, hypotheses, agreed, since, decided_pose=chosen.pose))
+        return TrackStep(res, acquire.Acquiring(prior, hypotheses, agreed, since, decided_pose=chosen.pose,
+                                                decided_t=t_eval if agreed > 1 else t))
 
     def _search_hypotheses(self, hits: ProjectedHits,
                            t: float | None) -> tuple[list[tuple[LocalizeResult, acquire.Hypothesis]], FitResult | None,
@@ -225,6 +233,18 @@ class GeometricLocalizer:
                  acquire.Hypothesis(motion.start(f.pose, f.covariance, t, mcfg), f.pose.copy(), t)) for f in fits], \
             lowest, False
 
+    def _with_twins(self, live: list[tuple[LocalizeResult, acquire.Hypothesis]]) -> list[tuple[LocalizeResult, acquire.Hypothesis]]:
+        """Each hypothesis and, on a point-symmetric court, its mirror twin (`_merge` drops duplicates)."""
+        if not self.symmetric:
+            return live
+        twins = []
+        for res, h in live:
+            pose = mirror(res.pose)
+            twins.append((LocalizeResult(pose=pose, fit=FitResult(**{**res.fit.__dict__, "pose": mirror(res.fit.pose)}),
+                                         mode=res.mode, status=res.status),
+                          acquire.Hypothesis(motion.mirrored(h.state), mirror(h.origin), h.origin_t)))
+        return live + twins
+
     def _merge(self, live: list[tuple[LocalizeResult, acquire.Hypothesis]]) -> list[tuple[LocalizeResult, acquire.Hypothesis]]:
         """Hypotheses that converged on one pose are one (the better-fitting one stays)."""
         acfg = self.config.acquire
@@ -234,12 +254,12 @@ class GeometricLocalizer:
                 out.append((res, h))
         return out
 
-    def _nearest(self, hypotheses: list[acquire.Hypothesis], prior: acquire.Prior | None) -> int:
+    def _nearest(self, hypotheses: list[acquire.Hypothesis], prior: acquire.Prior | None, t: float | None) -> int:
         """The hypothesis an undecided frame answers (invalid): nearest a pose prior, else the best fit."""
         if prior is None or prior.pose is None:
             return 0
         return min(range(len(hypotheses)), key=lambda i: acquire.prior_distance2(
-            prior, hypotheses[i].origin, hypotheses[i].origin_t, self.config.acquire))
+            prior, hypotheses[i].pose, t, self.config.acquire))
 
     @staticmethod
     def _status(res: LocalizeResult, status: str) -> LocalizeResult:

@@ -122,8 +122,9 @@ def test_track_follows_and_resets_after_lost_frames(setup) -> None:
         state = step.state
     assert state.lost == 3 and motion.is_lost(state, 0.5, loc.config.motion)
     # Lost: the court is searched again (acquisition, acquire.py) with the lost track's pose as the prior: it
-    # picks the twin, and after confirm_frames frames of the same answer the track restarts there, valid.
-    frames = loc.config.acquire.confirm_frames
+    # picks the twin, and (a tight prior: the track was lost 0.26 s ago) after confirm_frames_tight frames of the
+    # same answer the track restarts there, valid.
+    frames = loc.config.acquire.confirm_frames_tight
     for k in range(frames):
         step = loc.track(frame, state, 0.5 + 0.03 * k)
         state = step.state
@@ -132,7 +133,7 @@ def test_track_follows_and_resets_after_lost_frames(setup) -> None:
     assert isinstance(state, motion.MotionState) and state.lost == 0
     # No track and no prior: the twins tie, so the answer is never valid (not the "+x" half as it once was).
     state = None
-    for k in range(2 * frames):
+    for k in range(2 * loc.config.acquire.confirm_frames):
         step = loc.track(frame, state, 0.03 * k)
         state = step.state
         assert not step.result.valid and step.result.status == "ambiguous"
