@@ -106,7 +106,8 @@ def _print_row(name: str, r: dict[str, Any]) -> None:
           f"p95 {_fmt(r['p95_err_m'])} m  valid {_fmt(r['valid_fraction'], 100, 1)}% "
           f"(valid mean {_fmt(r['valid_mean_err_m'])} p95 {_fmt(r['valid_p95_err_m'])} m)  "
           f"valid_wrong {r['valid_wrong']}  recovery mean {_fmt(r['recovery_s_mean'], digits=2)} "
-          f"max {_fmt(r['recovery_s_max'], digits=2)} s ({r['events_unrecovered']}/{r['events']} unrecovered)",
+          f"max {_fmt(r['recovery_s_max'], digits=2)} s ({r['events_unrecovered']}/{r['events']} unrecovered)  "
+          f"camera {_fmt(r.get('camera_fps'), digits=1)} fps",
           file=sys.stderr, flush=True)
 
 
@@ -273,9 +274,13 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any]) -> 
     events = scenario_events(sc, truths, poses, args.fps, kill_ns)
     result = twin_metrics(poses, truths, events, end_ns)
     first = min((t.capture_ns for t in truths), default=0)
+    last = max((t.capture_ns for t in truths), default=0)
     for row in result["recoveries"]:
         row["t_s"] = round((row.pop("start_ns") - first) / 1e9, 3)
-    result.update(description=sc.description, frames=len(truths), restarts=summary["restarts_by_process"],
+    # Sim time is frames / fps: a camera that cannot render at fps plays the robot in slow motion.
+    camera_fps = (len(truths) - 1) / ((last - first) / 1e9) if last > first else None
+    result.update(description=sc.description, frames=len(truths), camera_fps=camera_fps,
+                  restarts=summary["restarts_by_process"],
                   stale_or_dropped={name: {"dropped": s["dropped"], "stale": s["stale"]}
                                     for name, s in summary["stages"].items()})
     return result
