@@ -6,8 +6,9 @@ simulated camera, the bundled model.
 from __future__ import annotations
 
 import importlib
+import math
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -17,9 +18,10 @@ from courtloc.common.runtime import Service
 from courtloc.common.security import with_identity
 from courtloc.common.services_table import SERVICES, check_robot_id
 from courtloc.services.camera.config import CameraConfig
-from courtloc.services.infer.config import InferConfig
+from courtloc.services.infer.config import InferConfig, StartConfig
 from courtloc.services.preprocess.config import PreprocessConfig
 from courtloc.services.shooter_bridge.config import ShooterConfig
+from courtloc.sim.source import SimSourceConfig
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
@@ -53,7 +55,9 @@ class DeploymentConfig(BaseModel):
 
     robot_id: str = "robot1"
     court: str = Field(default="seed-gazebo", description="the court every stage assumes unless its own "
-                       "section names one (sim camera, shooter target)")
+                       "section names one (sim camera, shooter target, the localizer package the infer stage serves)")
+    camera_model: Optional[str] = Field(default=None, description="the robot's camera model (name or JSON path) "
+                                        "when it is not the court's own (`default_camera` of the court file)")
     zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
     router: RouterConfig = Field(default_factory=RouterConfig)
     launcher: LauncherConfig = Field(default_factory=LauncherConfig)
@@ -64,8 +68,17 @@ class DeploymentConfig(BaseModel):
 
     @model_validator(mode="after")
     def _one_court_by_default(self) -> "DeploymentConfig":
+        court_name, camera_name = _court_and_camera(self.court, self.camera_model)
+        infer_update = {k: v for k, v in (("court", court_name), ("camera", camera_name))
+                        if k not in self.infer.model_fields_set}
+        if self.camera.source == "sim" and "start" not in self.infer.model_fields_set:
+            # The simulated robot starts where its trajectory does: the start a team would configure.
+            infer_update["start"] = sim_start(self.camera.sim)
+        self.infer = self.infer.model_copy(update=infer_update)
         if "court" not in self.camera.sim.model_fields_set:
             self.camera.sim = self.camera.sim.model_copy(update={"court": self.court})
+        if self.camera_model is not None and "camera" not in self.camera.sim.model_fields_set:
+            self.camera.sim = self.camera.sim.model_copy(update={"camera": self.camera_model})
         target = self.shooter_bridge.target
         if "court" not in target.model_fields_set and target.ring is None:
             self.shooter_bridge = self.shooter_bridge.model_copy(
@@ -76,6 +89,27 @@ class DeploymentConfig(BaseModel):
     @classmethod
     def _robot_id_is_a_key_chunk(cls, value: str) -> str:
         return check_robot_id(value)
+
+
+def _court_and_camera(court: str, camera: str | None) -> tuple[str, str]:
+    """Names of the deployment's court and camera, as packages' manifests carry them (files are read once)."""
+    from courtloc.sim.camera import load_camera
+    from courtloc.sim.court import load_court
+
+    model = load_court(court)
+    return model.name, load_camera(camera or model.default_camera).name
+
+
+def sim_start(sim: SimSourceConfig) -> StartConfig | None:
+    """Where the simulated robot starts, as a start with a generous spread (the stages come up while it
+    already drives: the infer stage's first frame can be seconds into the run)."""
+    if sim.trajectory == "waypoints" and len(sim.waypoints) >= 2:
+        first, second = sim.waypoints[0], sim.waypoints[1]
+        yaw = first[2] if len(first) > 2 else math.atan2(second[1] - first[1], second[0] - first[0])
+        return StartConfig(x=first[0], y=first[1], yaw_deg=math.degrees(yaw), std_m=1.5, yaw_std_deg=60.0)
+    if sim.trajectory == "random_walk":  # RandomWalkTrajectory starts at the centre facing +x
+        return StartConfig(x=0.0, y=0.0, yaw_deg=0.0, std_m=1.5, yaw_std_deg=60.0)
+    return None
 
 
 def load_deployment(path: Path | None) -> DeploymentConfig:

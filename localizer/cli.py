@@ -14,7 +14,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     build = ops.add_parser("build", help="write a package folder (model.onnx + court/camera/config JSON + README)")
     build.add_argument("--out", type=Path, required=True)
     build.add_argument("--court", default="seed-gazebo", help="packaged court name or court JSON path")
-    build.add_argument("--camera", default="seed-gazebo", help="packaged camera name or camera JSON path")
+    build.add_argument("--camera", help="packaged camera name or camera JSON path (default: the court's own, its "
+                       "default_camera)")
     build.add_argument("--config", type=Path, help="LocalizerConfig JSON (default: built-in defaults)")
     build.add_argument("--report", type=Path, help="crosseval JSON: its numbers go into the manifest and README")
     build.add_argument("--name", default="courtloc-geometric")
@@ -63,7 +64,8 @@ def _build(args: argparse.Namespace) -> int:
     from courtloc.sim.camera import load_camera
     from courtloc.sim.court import load_court
 
-    court, camera, config = load_court(args.court), load_camera(args.camera), _config(args.config)
+    court, config = load_court(args.court), _config(args.config)
+    camera = load_camera(args.camera or court.default_camera)
     report = json.loads(args.report.read_text()) if args.report else None
     metrics, data = {}, None
     if report:

@@ -80,6 +80,14 @@ def start(pose: np.ndarray, fit_cov: np.ndarray | None, t: float | None, cfg: Mo
     return MotionState(mean=mean, cov=cov, t=t, lost=0)
 
 
+def mirrored(state: MotionState) -> MotionState:
+    """The state's twin under the court's point symmetry: (x, y, yaw) -> (-x, -y, yaw + pi), velocities too."""
+    flip = np.array([-1.0, -1.0, 1.0, -1.0, -1.0, 1.0])
+    mean = state.mean * flip
+    mean[2] = _wrap(mean[2] + math.pi)
+    return MotionState(mean=mean, cov=state.cov * np.outer(flip, flip), t=state.t, lost=state.lost)
+
+
 def elapsed(state: MotionState, t: float | None, cfg: MotionConfig) -> float:
     if t is None or state.t is None:
         return cfg.frame_period_s

@@ -133,6 +133,16 @@ def request_pose(client, frames: TwinFrames, seq: int, frame_index: int = 0):  #
     return client.wait_for("infer/pose", lambda p: p.header.seq == seq, timeout=10.0)
 
 
+def first_valid_pose(client, frames: TwinFrames, seq: int, most: int = 8):  # noqa: ANN001, ANN201
+    """Frames `seq`, `seq + 1`, ... until a valid pose, at most `most` (then the last pose, invalid): a fresh
+    stage acquires its pose over a few frames (docs/localizer.md, "Acquisition"). Returns (pose, next seq)."""
+    for k in range(most):
+        pose = request_pose(client, frames, seq + k)
+        if pose.header.valid:
+            break
+    return pose, seq + k + 1
+
+
 def run_model_cli(config: Path, *args: str) -> tuple[int, dict, str]:
     """`courtloc -v model ARGS --config CONFIG --json` as its own process, niced: the pit is another machine.
 

@@ -13,7 +13,7 @@ from buskit import BusClient, free_port, start_router, start_stage, write_config
 from courtloc.common.messages import Pose
 from courtloc.security.signing import generate_signing_key, sign_model, write_signing_keys
 from courtloc.services.infer.store import INCOMING, ModelStore
-from infer_models import TwinFrames, bundled_default, request_pose, run_model_cli, tiny_paper_model, truncated_copy
+from infer_models import TwinFrames, first_valid_pose, bundled_default, request_pose, run_model_cli, tiny_paper_model, truncated_copy
 
 pytestmark = pytest.mark.integration
 
@@ -33,6 +33,8 @@ class Robot:
         self.config = write_config(tmp / "robot.toml", self.port, f"""
 [infer]
 store = "{self.store_dir}"
+# The twin robot stands still between requests (a push pauses the frames for seconds): a robot that waits.
+drift_mps = 0.1
 require_signature = true
 signing_public_key = "{tmp / 'sign.pub'}"
 """)
@@ -49,8 +51,11 @@ signing_public_key = "{tmp / 'sign.pub'}"
         return self.infer
 
     def pose(self) -> Pose:
-        self.seq += 1
-        return request_pose(self.client, self.frames, self.seq)
+        """The first valid pose of the next few frames: after a start or a pause of more than a second (a push
+        takes longer) the localizer acquires again, over a few frames (docs/localizer.md, "Acquisition")."""
+        pose, next_seq = first_valid_pose(self.client, self.frames, self.seq + 1)
+        self.seq = next_seq - 1
+        return pose
 
     def model(self, *args: str) -> tuple[int, dict[str, Any]]:
         code, reply, _ = run_model_cli(self.config, *args)

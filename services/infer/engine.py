@@ -85,11 +85,17 @@ def load_model(stored: StoredModel, config: InferConfig, golden: GoldenSets | No
             raise ModelRefused(f"sha256: {exc}") from None
         except Exception as exc:
             raise ModelRefused(f"weights unreadable: {type(exc).__name__}: {exc}") from None
+    mismatch = deployment_mismatch(manifest, config)
+    if mismatch:
+        raise ModelRefused(mismatch)
     try:
         predictor = load_predictor(stored.folder, providers=available_providers(config.providers),
                                    threads=config.threads)
     except Exception as exc:  # onnxruntime raises its own types for bad graphs and wrong shapes
         raise ModelRefused(f"cannot load: {type(exc).__name__}: {exc}") from None
+    localizer = getattr(predictor, "localizer", None)
+    if config.drift_mps is not None and localizer is not None:
+        localizer.config.acquire = localizer.config.acquire.model_copy(update={"motion_sigma_mps": config.drift_mps})
     try:
         court = load_court(manifest.court)
     except Exception as exc:
@@ -98,6 +104,14 @@ def load_model(stored: StoredModel, config: InferConfig, golden: GoldenSets | No
     if golden is not None:
         _run_golden(loaded, config, golden)
     return loaded
+
+
+def deployment_mismatch(manifest: "Manifest", config: InferConfig) -> str:
+    """Why a model does not fit this deployment's court or camera ('' when it does, or nothing is set)."""
+    for what, want, have in (("court", config.court, manifest.court), ("camera", config.camera, manifest.camera)):
+        if want is not None and have != want:
+            return f"model is for {what} {have!r}, this deployment's {what} is {want!r}"
+    return ""
 
 
 def check_graph_signature(path: Path, manifest: "Manifest") -> None:

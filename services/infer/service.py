@@ -18,8 +18,10 @@ from courtloc.common.messages import Edges, Pose
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import CONTROLS, Topic
-from courtloc.services.infer.config import InferConfig
-from courtloc.services.infer.engine import LoadedModel, ModelRefused, is_on_court, load_model
+from courtloc.localizer.acquire import Prior
+from courtloc.services.infer.config import InferConfig, StartConfig
+from courtloc.services.infer.resume import ResumeFile
+from courtloc.services.infer.engine import LoadedModel, ModelRefused, deployment_mismatch, is_on_court, load_model
 from courtloc.services.infer.golden import GoldenSets
 from courtloc.services.infer.model_control import ModelControl
 from courtloc.services.infer.shadow import ShadowRunner
@@ -32,7 +34,32 @@ DEFAULT_MODEL_NAME = "default"
 
 
 def bundled_default() -> Path:
+    """The seed-gazebo package (the built-in deployment's court and camera)."""
     return Path(str(importlib.resources.files("courtloc.models") / "default"))
+
+
+def bundled_for(config: InferConfig) -> Path:
+    """The shipped package for the deployment's court and camera (ModelRefused naming what ships otherwise)."""
+    from courtloc.localizer.manifest import ManifestError
+    from courtloc.localizer.package import bundled_package
+
+    if config.court is None:
+        return bundled_default()
+    try:
+        return bundled_package(config.court, config.camera or config.court)
+    except ManifestError as exc:
+        raise ModelRefused(str(exc)) from None
+
+
+def start_prior(start: StartConfig | None) -> Prior | None:
+    """The configured start as the localizer's evidence for a fresh run."""
+    if start is None:
+        return None
+    if start.x is None or start.y is None:
+        return Prior(source="start", half=start.half)
+    yaw = 0.0 if start.yaw_deg is None else math.radians(start.yaw_deg)
+    return Prior(source="start", pose=np.array([start.x, start.y, yaw]), std_m=start.std_m, half=start.half,
+                 yaw_std_rad=None if start.yaw_deg is None else math.radians(start.yaw_std_deg))
 
 
 def hits_of(edges: Edges) -> np.ndarray:
@@ -52,7 +79,8 @@ class InferService(Service):
         self.golden = GoldenSets()
         self.active: LoadedModel | None = None
         self.shadow: ShadowRunner | None = None
-        self.tracker = Tracker()
+        self.tracker = Tracker(start=start_prior(config.start))
+        self.resume = ResumeFile(config.resume_path, robot_id)
         self.swaps = 0
         self._control = ModelControl(self, Uploads(self.store, int(config.max_upload_mb * 2**20)))
         self._control_thread: threading.Thread | None = None
@@ -62,7 +90,12 @@ class InferService(Service):
     # ---- start-up ----------------------------------------------------------------------
     def on_start(self) -> None:
         self.active = self._load_active()
-        self.log.info("serving model %s", self.active.ref)
+        self.log.info("serving model %s (court %s, camera %s)", self.active.ref, self.active.manifest.court,
+                      self.active.manifest.camera)
+        saved = self.resume.load(self.active.manifest.court, self.config.resume_max_age_s)
+        if saved is not None:  # a restart mid-run: the saved pose, not the configured start, is the evidence
+            self.tracker.set_prior(saved.prior(), wall_ns=saved.wall_ns)
+            self.log.info("resuming from the pose saved %.1f s ago: (%.2f, %.2f)", saved.age_s(), saved.x, saved.y)
         self._prepare_golden(self.active)
         assert self.session is not None
         control = CONTROLS["infer/model"]
@@ -80,12 +113,18 @@ class InferService(Service):
             self.record_error("model", f"no golden inputs for {model.ref}: {exc}")
 
     def _load_active(self) -> LoadedModel:
-        """The store's active model; a fresh store gets the bundled default as version 1."""
+        """The store's active model; a fresh store gets the bundled package of the deployment's court and
+        camera. An active model for another court or camera is refused (with the reason) and the bundled
+        package of this deployment serves instead."""
         if self.store.record().active is None:
-            stored = self.store.add_folder(bundled_default(), DEFAULT_MODEL_NAME)
-            self.store.set_active(stored.ref)
+            self._activate_bundled()
         stored = self.store.active()
         assert stored is not None
+        mismatch = self._mismatch(stored)
+        if mismatch:
+            self.record_error("model", f"active model {stored.ref} refused: {mismatch}; serving the bundled package "
+                              f"for this deployment")
+            stored = self._activate_bundled()
         try:
             return load_model(stored, self.config, golden=None)
         except ModelRefused as exc:
@@ -93,6 +132,31 @@ class InferService(Service):
             self.record_error("model", f"active model {stored.ref} cannot load ({exc}); rolling back")
             target = self.store.rollback()
             return load_model(self.store.get(target), self.config, golden=None)
+
+    def _mismatch(self, stored: StoredModel) -> str:
+        from courtloc.localizer.manifest import read_manifest
+
+        try:
+            return deployment_mismatch(read_manifest(stored.model_path), self.config)
+        except Exception:  # unreadable: load_model below says why
+            return ""
+
+    def _activate_bundled(self) -> StoredModel:
+        """The bundled package for this deployment, as a store version (the existing copy when there is one)."""
+        from courtloc.localizer.manifest import read_manifest
+
+        source = bundled_for(self.config)
+        weights = read_manifest(source / "model.onnx").weights_sha256
+        for stored in self.store.models():
+            try:
+                if stored.ref.name == DEFAULT_MODEL_NAME and read_manifest(stored.model_path).weights_sha256 == weights:
+                    self.store.set_active(stored.ref)
+                    return stored
+            except Exception:  # an unreadable version is not the copy we look for
+                continue
+        stored = self.store.add_folder(source, DEFAULT_MODEL_NAME)
+        self.store.set_active(stored.ref)
+        return stored
 
     # ---- the hot path --------------------------------------------------------------------
     def on_message(self, topic: Topic, message: Edges, delivery: Delivery) -> None:
@@ -106,6 +170,8 @@ class InferService(Service):
         assert model is not None
         pose = self.make_pose(model, message, hits, fresh=fresh, tracker=self.tracker)
         self.publish("infer/pose", pose)
+        if pose.header.valid:
+            self.resume.offer(self.tracker.tracked_prior(), model.manifest.court, pose.header.capture_wall_ns)
         shadow = self.shadow
         if shadow is not None:
             shadow.offer(message, hits, pose)
@@ -124,7 +190,8 @@ class InferService(Service):
             track = getattr(model.predictor, "track", None)
             if track is not None:
                 # Capture times on the camera's monotonic clock: the filter predicts over the real interval.
-                pred, tracker.motion = track(hits, edges.width, edges.height, tracker.motion,
+                pred, tracker.motion = track(hits, edges.width, edges.height,
+                                             tracker.state_for(edges.header.capture_wall_ns),
                                              t=edges.header.capture_mono_ns * 1e-9)
             else:
                 pred = model.predictor.predict(hits, edges.width, edges.height, previous=tracker.previous)
@@ -136,7 +203,7 @@ class InferService(Service):
             elif not is_on_court(model.court, x, y, self.config.on_court_margin_m):
                 reason = "off_court"
             elif not pred.valid:
-                reason = "low_quality"
+                reason = getattr(pred, "reason", "") or "low_quality"
             ok = not reason
         if ok and not fresh:
             reason, ok = "stale_input", False
@@ -201,7 +268,8 @@ class InferService(Service):
             old.stop()
         if model is not None:
             self.shadow = ShadowRunner(model, lambda pose: self.publish("infer/shadow_pose", pose),
-                                       lambda m, edges, hits, tracker: self.make_pose(m, edges, hits, True, tracker))
+                                       lambda m, edges, hits, tracker: self.make_pose(m, edges, hits, True, tracker),
+                                       tracker=self.tracker.handover())
 
     def active_ref(self) -> ModelRef | None:
         return self.active.ref if self.active is not None else None
