@@ -47,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "source are replaced by the bench's)")
     parser.add_argument("--store", type=Path, default=None,
                         help="infer model store to serve from (default: a fresh one, i.e. the bundled model)")
+    parser.add_argument("--tell-start", choices=("pose", "half", "none"), default="pose",
+                        help="what the infer stage is told of the scenario's start ([infer] start): its pose (0.5 m, "
+                             "20 deg), only its half, or nothing (default pose: what a team configures)")
     parser.add_argument("--infer", action="append", default=[], metavar="FIELD=VALUE",
                         help="set an [infer] field for every scenario (VALUE is JSON, or a plain string)")
     parser.add_argument("--logs", type=Path, default=None, help="keep the stages' logs here (default: discarded)")
@@ -73,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"courtloc bench twin: {exc}", file=sys.stderr)
         return 1
     report["run"] = {"court": args.court, "camera": args.camera, "seconds": args.seconds, "fps": args.fps,
-                     "seed": args.seed, "scenarios": names, "load_avg": list(os.getloadavg()),
+                     "seed": args.seed, "tell_start": args.tell_start, "scenarios": names, "load_avg": list(os.getloadavg()),
                      "cpus": os.cpu_count(), "command": " ".join(["courtloc", *sys.argv[1:]])}
     text = json.dumps(report, indent=1)
     if args.json is not None:
@@ -118,19 +121,36 @@ def deployment_for(sc, args: argparse.Namespace, port: int, store: Path, infer_f
 
     base = load_deployment(args.config).model_dump(mode="json", exclude_unset=True)
     endpoint = f"tcp/127.0.0.1:{port}"
-    sim = sc.sim.model_copy(update={"camera": args.camera})
+    camera = args.camera or base.get("camera_model")  # the bench's, else the file's, else the court's own
+    sim = sc.sim.model_copy(update={"camera": camera})
+    if camera is not None:
+        base["camera_model"] = camera
     base.update(
         court=sc.sim.court,
         zenoh={"mode": "client", "connect": [endpoint]},
         router={"listen": [endpoint]},
         launcher={**base.get("launcher", {}), "services": available_stages(), "run_router": True},
         camera={**base.get("camera", {}), "source": "sim", "fps": args.fps, "sim": sim.model_dump(mode="json")},
-        infer={**base.get("infer", {}), "store": str(store), **infer_fields},
+        infer={**base.get("infer", {}), "store": str(store), "start": start_config(sc, args.tell_start),
+               **infer_fields},
     )
+    # What the deployment derives from its court and camera is derived again from the bench's.
+    for key in ("court", "camera"):
+        base["infer"].pop(key, None)
     shooter = base.get("shooter_bridge", {})
     if "target" in shooter:  # the shooter aims at the bench's court, not the file's
         shooter["target"].pop("court", None)
     return DeploymentConfig.model_validate(base)
+
+
+def start_config(sc, tell: str) -> dict[str, Any] | None:  # noqa: ANN001
+    """`[infer] start` for the scenario: the start pose as a team would configure it, its half, or nothing."""
+    x, y, yaw = sc.start_pose
+    if tell == "pose":
+        return {"x": x, "y": y, "yaw_deg": math.degrees(yaw)}
+    if tell == "half":
+        return {"half": "+x" if x > 0 else "-x"}
+    return None
 
 
 @dataclass

@@ -20,9 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from courtloc.localizer.metrics import wrap_angle
-
-WRONG_M = 0.5
+from courtloc.localizer.metrics import WRONG_M, wrap_angle  # one "valid and wrong" threshold for eval and bench
 
 
 @dataclass(frozen=True)

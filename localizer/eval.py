@@ -12,9 +12,9 @@ Every frame's answer carries the model's valid flag (the paper network has none:
 as valid), so the metrics come twice: over all frames, and over the valid ones (`valid_*`, with
 `valid_wrong`: valid and more than 0.5 m off).
 
-A start (`StartHint`: the robot's half and/or its start pose) is given to the model where the infer
-stage's tracker would: at the first frame of each recording (of each frame when frames are independent
-poses, e.g. `courtloc dataset synth` output, or without tracking).
+A start (`StartHint`: the robot's half and/or its start pose) is given to the model as the infer stage's
+tracker gives its configured start: as the evidence of the first frame of each recording (of each frame
+when frames are independent poses, e.g. `courtloc dataset synth` output, or without tracking).
 
 Plots need matplotlib (the `train` extra); without it `evaluate` still gives every number.
 """
@@ -37,6 +37,7 @@ from courtloc.services.infer.tracking import Tracker  # the robot's own tracking
 
 log = logging.getLogger(__name__)
 PAPER_KINDS = ("dense_image", "sparse_hits")
+STILL_FRAMES = 10  # an independent pose is a robot standing still for up to this many frames
 
 
 def default_model_path() -> Path:
@@ -56,23 +57,27 @@ class FramePrediction:
 
 @dataclass(frozen=True)
 class StartHint:
-    """Where the robot starts: its half ("+x" / "-x") and/or a pose (x, y, yaw)."""
+    """Where the robot starts: its half ("+x" / "-x") and/or a pose (x, y, yaw), the pose known to `std_m`
+    and the heading to `yaw_std_deg` (the defaults of the infer stage's `[infer] start`)."""
 
     side: Optional[Literal["+x", "-x"]] = None
     pose: Optional[tuple[float, float, float]] = None
+    std_m: float = 0.5
+    yaw_std_deg: float = 20.0
 
     def __post_init__(self) -> None:
-        if self.pose is not None and self.side is not None and (self.pose[0] >= 0) != (self.side == "+x") \
-                and abs(self.pose[0]) > 1e-9:
+        if self.pose is not None and self.side is not None and abs(self.pose[0]) > 1e-9 \
+                and (self.pose[0] > 0) != (self.side == "+x"):
             raise ValueError(f"start pose x = {self.pose[0]} is not in the start side {self.side}")
 
-    @property
-    def half(self) -> Optional[Literal["+x", "-x"]]:
-        if self.side is not None:
-            return self.side
-        if self.pose is not None:
-            return "+x" if self.pose[0] >= 0 else "-x"
-        return None
+    def prior(self):  # noqa: ANN201 - acquire.Prior
+        """The start as the localizer's evidence, as the infer stage hands it over (`[infer] start`)."""
+        from courtloc.localizer.acquire import Prior
+
+        if self.pose is None:
+            return Prior(source="start", half=self.side)
+        return Prior(source="start", pose=np.array(self.pose, dtype=np.float64), std_m=self.std_m, half=self.side,
+                     yaw_std_rad=math.radians(self.yaw_std_deg))
 
 
 class FrameModel(Protocol):
@@ -119,54 +124,48 @@ class HitsPredictorModel:
 
     With `tracking` each frame starts from the infer stage's tracker (the same rule as on the robot: the
     model's motion filter, `predictor.track`, when it has one, timed by the file names' time stamps) while
-    frames come from the same recording in order; without it, or when the dataset's frames are
-    independent poses, every frame is localised on its own.
+    frames come from the same recording in order; without it every frame is localised on its own.
+    A start hint is the tracker's start (`Tracker.start`, as the infer stage's `[infer] start`): the
+    evidence of every sequence's first frame.
 
-    A start hint reaches the localizer as it can today: the half as the package's `half` setting (the
-    symmetry twin a search without a previous pose picks), the pose as the `previous` pose of the first
-    frame of a sequence.
+    Frames that are independent poses (`Dataset.sequential` False, e.g. `dataset synth`) are each a robot
+    standing still there: the frame is given to a fresh tracker up to `still_frames` times, 1/30 s apart,
+    until its answer is valid, and the last answer counts (acquisition needs a few frames of agreement
+    before it answers valid: docs/localizer.md).
     """
 
-    def __init__(self, path: Path, threads: int = 1, tracking: bool = True, start: StartHint | None = None) -> None:
+    def __init__(self, path: Path, threads: int = 1, tracking: bool = True, start: StartHint | None = None,
+                 still_frames: int = STILL_FRAMES) -> None:
         from courtloc.localizer.predictor import load_predictor
 
-        config = None
-        if start is not None and start.half is not None:
-            config = _config_with_half(path, start.half)
-        self.predictor = load_predictor(path, providers=["CPUExecutionProvider"], threads=threads, config=config)
+        self.predictor = load_predictor(path, providers=["CPUExecutionProvider"], threads=threads)
         self.manifest = self.predictor.manifest
         self.tracking = tracking
-        self.start = start
-        self.tracker = Tracker()
+        self.still_frames = still_frames
+        self.tracker = Tracker(start=None if start is None else start.prior())
         self._last: tuple[str, int] | None = None  # (recording, frame index) of the previous call
 
     def predict_frame(self, dataset: Dataset, i: int) -> FramePrediction:
         hits, height, width = dataset.hits(i)
         recording = str(dataset.recordings[i])
-        first = not self.tracking or not dataset.sequential or self._last != (recording, i - 1)
-        if first:
+        if not self.tracking or not dataset.sequential or self._last != (recording, i - 1):
             self.tracker.reset()
         track = getattr(self.predictor, "track", None) if self.tracking else None
-        if first and self.start is not None and self.start.pose is not None:
-            pose = self.predictor.predict(hits, width, height, self.start.pose)
-        elif track is not None:
+        if track is None:
+            pose = self.predictor.predict(hits, width, height, self.tracker.previous)
+        elif dataset.sequential:
             pose, self.tracker.motion = track(hits, width, height, self.tracker.motion,
                                               t=frame_time(dataset.filenames[i]))
         else:
-            pose = self.predictor.predict(hits, width, height, self.tracker.previous)
+            for k in range(self.still_frames):
+                pose, self.tracker.motion = track(hits, width, height, self.tracker.motion, t=k / 30.0)
+                if pose.valid:
+                    break
         self.tracker.update(pose.x, pose.y, pose.yaw, pose.valid, pose.trackable)
         self._last = (recording, i)
         yaw = None if pose.yaw is None else float(pose.yaw)
         finite = all(math.isfinite(v) for v in (pose.x, pose.y, *(() if yaw is None else (yaw,))))
         return FramePrediction(float(pose.x), float(pose.y), yaw, valid=bool(pose.valid) and finite)
-
-
-def _config_with_half(path: Path, half: str):  # noqa: ANN202 - a LocalizerConfig
-    """The package's own localizer settings with the robot's half set."""
-    from courtloc.localizer.package import load_package
-
-    folder = path.parent if path.is_file() else path
-    return load_package(folder).config.model_copy(update={"half": half})
 
 
 def open_model(path: Path | None, threads: int = 1, tracking: bool = True, start: StartHint | None = None) -> FrameModel:

@@ -139,3 +139,29 @@ def test_bench_twin_refuses_an_unknown_scenario_in_one_line():
                             capture_output=True, text=True, timeout=120)
     assert result.returncode != 0
     assert result.stderr.strip().count("\n") == 0 and "unknown scenario 'rainy'" in result.stderr
+
+
+def test_the_infer_stage_is_told_the_scenarios_start(tmp_path: Path):
+    import argparse
+
+    from courtloc.bench_twin import deployment_for
+    from courtloc.deployment import sim_start
+
+    sc = scenario("minus_x_start", "robocon2025", seconds=10.0)
+
+    def config(tell: str):
+        args = argparse.Namespace(config=None, camera=None, fps=30.0, tell_start=tell)
+        return deployment_for(sc, args, 7999, tmp_path / "store", {})
+
+    told = config("pose")
+    assert told.infer.start is not None and (told.infer.start.x, told.infer.start.y) == (-3.0, 1.0)
+    assert told.infer.start.yaw_deg == pytest.approx(math.degrees(-0.5))
+    assert told.infer.court == "robocon2025" and told.camera.sim.court == "robocon2025"
+    assert told.zenoh.connect == ["tcp/127.0.0.1:7999"] and told.router.listen == told.zenoh.connect
+    assert told.infer.store == tmp_path / "store"
+    half = config("half").infer.start
+    assert half is not None and half.half == "-x" and half.x is None
+    assert config("none").infer.start is None
+    # `courtloc up` with a sim random walk that starts elsewhere than the centre: the start it derives.
+    derived = sim_start(sc.sim)
+    assert derived is not None and (derived.x, derived.y) == (-3.0, 1.0)
