@@ -15,6 +15,7 @@ BENCHES: dict[str, str] = {
     "localize": "courtloc.localizer.bench",
     "soak": "courtloc.bench_soak",
     "infer": "courtloc.services.infer.bench",
+    "twin": "courtloc.bench_twin",
 }
 
 

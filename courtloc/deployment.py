@@ -107,8 +107,9 @@ def sim_start(sim: SimSourceConfig) -> StartConfig | None:
         first, second = sim.waypoints[0], sim.waypoints[1]
         yaw = first[2] if len(first) > 2 else math.atan2(second[1] - first[1], second[0] - first[0])
         return StartConfig(x=first[0], y=first[1], yaw_deg=math.degrees(yaw), std_m=1.5, yaw_std_deg=60.0)
-    if sim.trajectory == "random_walk":  # RandomWalkTrajectory starts at the centre facing +x
-        return StartConfig(x=0.0, y=0.0, yaw_deg=0.0, std_m=1.5, yaw_std_deg=60.0)
+    if sim.trajectory == "random_walk":  # at `start`, else RandomWalkTrajectory's centre facing +x
+        x, y, yaw = sim.start or (0.0, 0.0, 0.0)
+        return StartConfig(x=x, y=y, yaw_deg=math.degrees(yaw), std_m=1.5, yaw_std_deg=60.0)
     return None
 
 

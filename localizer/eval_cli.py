@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import sys
 from pathlib import Path
 
 from courtloc.localizer.dataset_args import add_dataset_arguments
@@ -22,17 +24,52 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--no-tracking", action="store_true",
                         help="localise every frame on its own (default: consecutive frames of a recording "
                              "get the previous prediction as prior, as on the robot)")
+    parser.add_argument("--start-side", default=None, metavar="{+x,-x}",
+                        help="the robot starts in this half (given to the localizer as the infer stage would); "
+                             "write --start-side=-x")
+    parser.add_argument("--start-pose", default=None, metavar="X,Y,YAW",
+                        help="the robot's start pose, metres and radians, at the first frame of each recording "
+                             "(--start-pose=-3,1,0 when X is negative)")
+    parser.add_argument("--data-court", default=None, metavar="NAME",
+                        help="the court the data shows, when the data does not say (a synth folder does)")
     parser.add_argument("--no-progress", action="store_true")
-    parser.set_defaults(func=_eval)
+    # No --kind given: what a `dataset synth` folder says it holds, else dots.
+    parser.set_defaults(func=_eval, kind=None)
+    _one_line_errors(parser, "eval")
 
     report = sub.add_parser("duplicates", help="recordings, frame counts and duplicate frames of a labelled dataset")
     add_dataset_arguments(report)
+    report.set_defaults(kind=None)
+    _one_line_errors(report, "duplicates")
     report.add_argument("--jaccard", type=float, default=0.1,
                         help="near-identical: Jaccard distance of the dot-pixel sets below this")
     report.set_defaults(func=_dataset)
 
 
-def _dataset(args: argparse.Namespace) -> int:
+def _one_line_errors(parser: argparse.ArgumentParser, command: str) -> None:
+    """A usage mistake is one line naming the reason (argparse would print the usage block first)."""
+    def error(message: str) -> None:
+        if "expected one argument" in message:
+            message += " (a value starting with '-' goes after '=': --start-side=-x, --start-pose=-3,1,0)"
+        print(f"courtloc {command}: {message}", file=sys.stderr)
+        sys.exit(2)
+    parser.error = error  # type: ignore[method-assign]
+
+
+def _reported(command: str, handler):  # noqa: ANN001, ANN202
+    """Run a handler; a known failure is one line with the reason and exit 1 (the traceback with -v)."""
+    def run(args: argparse.Namespace) -> int:
+        try:
+            return handler(args)
+        except (ValueError, OSError) as exc:  # DatasetError and ManifestError are ValueErrors
+            if getattr(args, "verbose", 0):
+                raise
+            print(f"courtloc {command}: {exc}", file=sys.stderr)
+            return 1
+    return run
+
+
+def _dataset_handler(args: argparse.Namespace) -> int:
     from courtloc.localizer.datasets import Dataset, duplicate_report
 
     dataset = Dataset(args.data, csv_path=args.csv, kind=args.kind)
@@ -43,13 +80,36 @@ def _dataset(args: argparse.Namespace) -> int:
     return 0
 
 
-def _eval(args: argparse.Namespace) -> int:
+def parse_start(side: str | None, pose: str | None):  # noqa: ANN201 - eval.StartHint | None
+    from courtloc.localizer.eval import StartHint
+
+    if side is None and pose is None:
+        return None
+    if side is not None and side not in ("+x", "-x"):
+        raise ValueError(f"--start-side must be +x or -x, got {side!r}")
+    parsed = None
+    if pose is not None:
+        try:
+            parsed = tuple(float(v) for v in pose.split(","))
+        except ValueError:
+            parsed = ()
+        if len(parsed) != 3 or not all(map(math.isfinite, parsed)):
+            raise ValueError(f"--start-pose must be X,Y,YAW (metres, metres, radians), got {pose!r}")
+    return StartHint(side=side, pose=parsed)
+
+
+def _eval_handler(args: argparse.Namespace) -> int:
     from courtloc.localizer.datasets import Dataset
     from courtloc.localizer.eval import evaluate, open_model, write_plots, write_predictions_csv
 
+    start = parse_start(args.start_side, args.start_pose)
     dataset = Dataset(args.data, csv_path=args.csv, kind=args.kind)
     indices = dataset.indices_of(args.recordings) if args.recordings else None
-    model = open_model(args.model, threads=args.threads, tracking=not args.no_tracking)
+    model = open_model(args.model, threads=args.threads, tracking=not args.no_tracking, start=start)
+    data_court = args.data_court or dataset.court
+    if data_court is not None and data_court != model.manifest.court:
+        print(f"courtloc eval: warning: the data shows court {data_court!r}, the model is built for "
+              f"{model.manifest.court!r}", file=sys.stderr)
     result = evaluate(model, dataset, indices, progress=not args.no_progress)
     metrics = result.metrics.as_dict()
     text = json.dumps(metrics, indent=1)
@@ -63,3 +123,7 @@ def _eval(args: argparse.Namespace) -> int:
         for path in write_plots(result, args.plots, title=model.manifest.name):
             print(f"plot: {path}")
     return 0
+
+
+_eval = _reported("eval", _eval_handler)
+_dataset = _reported("duplicates", _dataset_handler)
