@@ -15,13 +15,14 @@ CFG = AcquireConfig()
 POSE = np.array([-1.0, -2.0, 0.5])  # the -x half; its mirror twin is (1, 2, 0.5 + pi)
 
 
-def _hyp(pose) -> acquire.Hypothesis:  # noqa: ANN001
+def _hyp(pose, t: float = 0.0) -> acquire.Hypothesis:  # noqa: ANN001
     pose = np.asarray(pose, float)
-    return acquire.Hypothesis(motion.start(pose, None, 0.0, MotionConfig()), pose, 0.0)
+    return acquire.Hypothesis(motion.start(pose, None, t, MotionConfig()), pose, t)
 
 
 def _decide(poses, prior, t=0.0, half=None) -> acquire.Decision:  # noqa: ANN001
-    return acquire.decide([_hyp(p) for p in poses], prior, half, t, CFG, 0.3)
+    """Hypotheses first seen at time t."""
+    return acquire.decide([_hyp(p, t) for p in poses], prior, half, t, CFG, 0.3)
 
 
 def test_without_evidence_twins_stay_undecided_and_a_lone_hypothesis_is_decided() -> None:
@@ -51,6 +52,14 @@ def test_a_track_prior_that_explains_no_hypothesis_is_not_evidence() -> None:
     far = acquire.Prior("track", pose=np.array([6.0, 3.0, 2.0]), std_m=0.05, yaw_std_rad=0.02, t=0.0)
     decision = _decide([POSE, mirror(POSE)], far, t=0.2)
     assert decision.index is None and not decision.explained
+
+
+def test_a_hypothesis_keeps_the_evidence_of_where_it_was_first_seen() -> None:
+    prior = acquire.Prior("track", pose=POSE, std_m=0.1, yaw_std_rad=0.05, t=0.0)
+    # Both seen 0.2 s after the prior; judged now, 10 s later, by where they were then.
+    moved = [_hyp(POSE + [2.0, 1.0, 0.5], 0.2), _hyp(mirror(POSE + [2.0, 1.0, 0.5]), 0.2)]
+    moved = [acquire.Hypothesis(h.state, o, 0.2) for h, o in zip(moved, (POSE + [0.1, 0, 0], mirror(POSE)))]
+    assert acquire.decide(moved, prior, None, 10.0, CFG, 0.3).index == 0
 
 
 def test_the_prior_time_is_set_by_the_first_frame_less_its_age() -> None:
