@@ -4,8 +4,9 @@ A single frame often fits more than one place on the court equally well: always 
 twin (x, y, yaw) / (-x, -y, yaw + pi) on a point-symmetric court, and sometimes other near-ties (the
 court repeats parallel lines). The rule, one frame at a time while acquiring:
 
-1. Hypotheses. A global search proposes poses; every refined fit that is valid and whose robust cost
-   is within `tie_ratio` x the best (+ `tie_abs`) is a hypothesis, and so is each one's mirror twin
+1. Hypotheses. A global search proposes poses; every refined fit that is valid, or trackable (enough
+   inliers, but the view does not pin the position: only parallel lines), and whose robust cost is
+   within `tie_ratio` x the best (+ `tie_abs`) is a hypothesis, and so is each one's mirror twin
    (refined on its own: on a symmetric court it ties exactly, where the arena differs its cost decides).
    Each hypothesis is then tracked like a track (motion filter); one whose fits stop fitting
    (`drop_lost_frames` frames without a usable fit) or cost more than `tie_ratio` x the best
@@ -21,7 +22,10 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    that had snapped to a wrong parallel line): it becomes a kidnap prior, the same place with
    `kidnap_sigma_m` std and the heading unknown (the assumption: a robot pushed or carried in a match
    lands within a few metres); one that explains nothing either is dropped. A start or pit prior stays.
-   Without a prior, only a lone hypothesis is decided (never on a symmetric court).
+   Without a prior, only a lone hypothesis is decided (never on a symmetric court). An unpinned
+   hypothesis is never decided, and it competes with the others anywhere along its free direction (its
+   covariance counts in d^2): a degenerate view of the truth beside a valid fit of a wrong place keeps
+   both undecided, and usually the wrong one dies of the cost tie.
 3. Confirmation. The decided hypothesis must be the one answer for `confirm_frames` frames in a row
    with a valid fit (`confirm_frames_tight` when a pose prior known to `tight_prior_m` decided: a wrong
    basin that close to a known pose is what tracking risks anyway); each of those frames searches the
@@ -72,6 +76,8 @@ class Hypothesis:
     state: motion.MotionState
     origin: np.ndarray
     origin_t: float | None
+    origin_cov: np.ndarray | None = None  # (2, 2) position covariance where first seen (None: a point)
+    pinned: bool = True  # False: its fits do not pin the position (a degenerate view): never decided
 
     @property
     def pose(self) -> np.ndarray:
@@ -99,12 +105,19 @@ def same_pose(a: np.ndarray, b: np.ndarray, cfg: AcquireConfig) -> bool:
     return math.hypot(a[0] - b[0], a[1] - b[1]) <= cfg.merge_m and _yaw_diff(a[2], b[2]) <= cfg.merge_rad
 
 
-def prior_distance2(prior: Prior, pose: np.ndarray, t: float | None, cfg: AcquireConfig) -> float:
-    """Mahalanobis d^2 of a pose from a pose prior, its spread grown by the time since it held."""
+def prior_distance2(prior: Prior, pose: np.ndarray, t: float | None, cfg: AcquireConfig,
+                    position_cov: np.ndarray | None = None) -> float:
+    """Mahalanobis d^2 of a pose from a pose prior, its spread grown by the time since it held, plus the
+    pose's own position covariance (a hypothesis the view cannot pin down is near the prior anywhere
+    along its free direction)."""
     assert prior.pose is not None
     age = 0.0 if t is None or prior.t is None else abs(t - prior.t)
     sigma = prior.std_m + cfg.motion_sigma_mps * age
-    d2 = ((pose[0] - prior.pose[0]) ** 2 + (pose[1] - prior.pose[1]) ** 2) / sigma ** 2
+    cov = np.eye(2) * sigma ** 2
+    if position_cov is not None and np.all(np.isfinite(position_cov)):
+        cov = cov + np.clip(position_cov, -1e4, 1e4)
+    delta = np.asarray(pose[:2], np.float64) - prior.pose[:2]
+    d2 = float(delta @ np.linalg.solve(cov, delta))
     if prior.yaw_std_rad is not None:
         yaw_sigma = prior.yaw_std_rad + cfg.yaw_sigma_rps * age
         if yaw_sigma < math.pi:  # beyond half a turn the heading says nothing
@@ -142,16 +155,17 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
     if prior is not None and prior.half is not None:
         keep = [i for i in keep if in_half(poses[i], prior.half, centre_margin_m)]
     if prior is not None and prior.pose is not None and keep:
-        d2 = {i: prior_distance2(prior, hypotheses[i].origin, hypotheses[i].origin_t, cfg) for i in keep}
+        d2 = {i: prior_distance2(prior, hypotheses[i].origin, hypotheses[i].origin_t, cfg, hypotheses[i].origin_cov)
+              for i in keep}
         inside = [i for i in keep if d2[i] <= cfg.prior_gate_chi2]
         if not inside:
             return Decision(None, explained=False)
         best = min(inside, key=d2.__getitem__)
-        if d2[best] <= cfg.decide_chi2 and all(0.5 * (d2[i] - d2[best]) >= cfg.decide_log_ratio
+        if hypotheses[best].pinned and d2[best] <= cfg.decide_chi2 and all(0.5 * (d2[i] - d2[best]) >= cfg.decide_log_ratio
                                                for i in keep if i != best):
             origin_t = hypotheses[best].origin_t
             age = 0.0 if origin_t is None or prior.t is None else abs(origin_t - prior.t)
             return Decision(best, explained, tight=prior.std_m + cfg.motion_sigma_mps * age <= cfg.tight_prior_m,
                             kidnap=prior.source == "kidnap")
         return Decision(None, explained)
-    return Decision(keep[0] if len(keep) == 1 else None, explained)
+    return Decision(keep[0] if len(keep) == 1 and hypotheses[keep[0]].pinned else None, explained)

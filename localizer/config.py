@@ -113,11 +113,11 @@ class AcquireConfig(BaseModel):
     tight_prior_m: float = Field(1.0, gt=0, description="a pose prior this well known (std, grown by its age) is "
                                  "tight")
     research_frames: int = Field(15, ge=1, description="while undecided, search the court again this often")
-    motion_sigma_mps: float = Field(1.0, gt=0, description="a pose prior's position std grows this much per second")
-    yaw_sigma_rps: float = Field(1.5, gt=0, description="... and its heading std, radians per second")
+    motion_sigma_mps: float = Field(0.5, gt=0, description="a pose prior's position std grows this much per second")
+    yaw_sigma_rps: float = Field(0.75, gt=0, description="... and its heading std, radians per second")
     prior_gate_chi2: float = Field(16.0, gt=0, description="a hypothesis farther from a pose prior (d^2) is not "
                                    "explained by it")
-    lost_std_m: float = Field(1.0, gt=0, description="a lost track's pose is a prior at least this wide (a track "
+    lost_std_m: float = Field(0.5, gt=0, description="a lost track's pose is a prior at least this wide (a track "
                               "dropped after degenerate views can sit on a parallel line 1.85 m away, its std unaware)")
     decide_chi2: float = Field(9.0, gt=0, description="the hypothesis a pose prior decides for must lie within this "
                                "d^2 of it (3 sigma): farther, the truth may be a pose the search could not pin down")

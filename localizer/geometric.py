@@ -73,6 +73,11 @@ class TrackStep:
     state: TrackState
 
 
+def _position_cov(fit: FitResult) -> np.ndarray | None:
+    cov = fit.covariance
+    return None if cov is None or not np.all(np.isfinite(cov)) else np.asarray(cov, np.float64)[:2, :2].copy()
+
+
 class GeometricLocalizer:
     def __init__(self, court: Court, camera: CameraModel, config: LocalizerConfig | None = None,
                  field: CourtField | None = None, batch_starts: bool = True) -> None:
@@ -157,7 +162,9 @@ class GeometricLocalizer:
         for h in state.hypotheses:
             step = self._step(hits, h.state, t)
             if step.state is not None and step.state.lost < acfg.drop_lost_frames:
-                live.append((step.result, acquire.Hypothesis(step.state, h.origin, h.origin_t)))
+                # Pinned once a fit of it is valid: from then on the view has pinned where it is.
+                live.append((step.result, acquire.Hypothesis(step.state, h.origin, h.origin_t, h.origin_cov,
+                                                             h.pinned or step.result.valid)))
         since = state.since_search + 1
         searched: FitResult | None = None
         blocked = False
@@ -228,21 +235,23 @@ class GeometricLocalizer:
             return [], None, False
         firsts = self._fit_starts(hits, np.array(candidates))
         lowest = min(firsts, key=lambda f: f.cost)
-        ok = sorted((f for f in firsts if f.valid), key=lambda f: f.cost)
-        if not ok:
+        q = self.config.quality
+        # Valid fits, and the ones the view cannot pin down (e.g. only parallel lines: free along them) but
+        # that fit well: the latter are never decided, they keep a near-miss elsewhere from being decided.
+        ok = sorted((f for f in firsts if f.valid or (f.n_inliers >= q.min_inliers and f.inlier_ratio >= 0.5)),
+                    key=lambda f: f.cost)
+        if not any(f.valid for f in ok):
             return [], lowest, False
         limit = ok[0].cost * acfg.tie_ratio + acfg.tie_abs
-        if lowest.cost < ok[0].cost:
-            # A pose the view cannot pin down (e.g. only parallel lines: free along them) explains it clearly
-            # better than any valid fit: the valid ones are near-misses somewhere else, not evidence.
-            return [], lowest, True
         ok = [f for f in ok if f.cost <= limit][:acfg.max_hypotheses]
         twins = self._fit_starts(hits, np.array([mirror(f.pose) for f in ok]))
-        fits = sorted([f for f in ok + twins if f.valid and f.cost <= limit], key=lambda f: f.cost)
+        fits = sorted([f for f in ok + twins if f.cost <= limit and (f.valid or f.inlier_ratio >= 0.5)],
+                      key=lambda f: f.cost)
         mcfg = self.config.motion
-        return [(LocalizeResult(pose=f.pose, fit=f, mode="global"),
-                 acquire.Hypothesis(motion.start(f.pose, f.covariance, t, mcfg), f.pose.copy(), t)) for f in fits], \
-            lowest, False
+        found = [(LocalizeResult(pose=f.pose, fit=f, mode="global"),
+                  acquire.Hypothesis(motion.start(f.pose, f.covariance, t, mcfg), f.pose.copy(), t, _position_cov(f),
+                                     f.valid)) for f in fits]
+        return found, lowest, not ok[0].valid
 
     def _with_twins(self, live: list[tuple[LocalizeResult, acquire.Hypothesis]]) -> list[tuple[LocalizeResult, acquire.Hypothesis]]:
         """Each hypothesis and, on a point-symmetric court, its mirror twin (`_merge` drops duplicates)."""
@@ -253,7 +262,8 @@ class GeometricLocalizer:
             pose = mirror(res.pose)
             twins.append((LocalizeResult(pose=pose, fit=FitResult(**{**res.fit.__dict__, "pose": mirror(res.fit.pose)}),
                                          mode=res.mode, status=res.status),
-                          acquire.Hypothesis(motion.mirrored(h.state), mirror(h.origin), h.origin_t)))
+                          acquire.Hypothesis(motion.mirrored(h.state), mirror(h.origin), h.origin_t,
+                                             None if h.origin_cov is None else h.origin_cov.copy(), h.pinned)))
         return live + twins
 
     def _merge(self, live: list[tuple[LocalizeResult, acquire.Hypothesis]]) -> list[tuple[LocalizeResult, acquire.Hypothesis]]:
@@ -265,7 +275,8 @@ class GeometricLocalizer:
                 if acquire.same_pose(h.pose, kept.pose, acfg):
                     if h.origin_t is not None and kept.origin_t is not None and h.origin_t < kept.origin_t:
                         # One pose tracked since the earlier sighting: that sighting is its evidence.
-                        out[k] = (kept_res, acquire.Hypothesis(kept.state, h.origin, h.origin_t))
+                        out[k] = (kept_res, acquire.Hypothesis(kept.state, h.origin, h.origin_t, h.origin_cov,
+                                                               kept.pinned or h.pinned))
                     break
             else:
                 out.append((res, h))
