@@ -19,9 +19,10 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    hypothesis when it lies within `decide_chi2` (3 sigma) and every other one scores worse by at least
    `decide_log_ratio` in log-likelihood (d^2 / 2). A half prior keeps the hypotheses in that half (|x| >= the centre margin). A lost
    track's prior that explains none of the hypotheses for `kidnap_frames` frames means the robot was moved (a kidnap, or a track
-   that had snapped to a wrong parallel line): it becomes a kidnap prior, the same place with
-   `kidnap_sigma_m` std and the heading unknown (the assumption: a robot pushed or carried in a match
-   lands within a few metres); one that explains nothing either is dropped. A start or pit prior stays.
+   that had snapped to a wrong parallel line): it is dropped, or with `kidnap_sigma_m` > 0 (default 0)
+   it becomes a kidnap prior, the same place that wide with the heading unknown (an assumption: a robot
+   pushed or carried lands within a few metres; on the twin's robocon2025 kidnaps it decided wrong
+   hypotheses, hence off by default). A start or pit prior stays.
    Without a prior, only a lone hypothesis is decided (never on a symmetric court). An unpinned
    hypothesis is never decided, and it competes with the others anywhere along its free direction (its
    covariance counts in d^2): a degenerate view of the truth beside a valid fit of a wrong place keeps

@@ -123,7 +123,7 @@ class AcquireConfig(BaseModel):
                                "d^2 of it (3 sigma): farther, the truth may be a pose the search could not pin down")
     kidnap_frames: int = Field(15, ge=1, description="frames a lost track's pose must explain no hypothesis before "
                                "it is taken for a kidnap (the truth may just not be found yet in a degenerate view)")
-    kidnap_sigma_m: float = Field(3.0, ge=0, description="a lost track's pose that explains no hypothesis (the robot "
+    kidnap_sigma_m: float = Field(0.0, ge=0, description="a lost track's pose that explains no hypothesis (the robot "
                                   "was moved) is kept as a prior this wide, heading unknown (0: dropped)")
     decide_log_ratio: float = Field(4.6, gt=0, description="the prior decides when the best hypothesis is this much "
                                     "more likely (log) than every other (4.6: 100 to 1)")
