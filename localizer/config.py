@@ -107,7 +107,7 @@ class AcquireConfig(BaseModel):
     drop_lost_frames: int = Field(3, ge=1, description="a hypothesis without a usable fit this many frames dies")
     confirm_frames: int = Field(3, ge=1, description="frames a decided hypothesis must answer valid before the "
                                 "track starts")
-    confirm_frames_tight: int = Field(1, ge=1, description="... when a pose prior within tight_prior_m decided")
+    confirm_frames_tight: int = Field(3, ge=1, description="... when a pose prior within tight_prior_m decided")
     confirm_frames_kidnap: int = Field(10, ge=1, description="... when a kidnap prior decided (it admits wrong "
                                        "hypotheses metres away: the view must change before one is trusted)")
     tight_prior_m: float = Field(1.0, gt=0, description="a pose prior this well known (std, grown by its age) is "

@@ -92,7 +92,7 @@ store = "{tmp_path / 'store'}"
         assert not any(p.header.valid for p in poses), [(p.x, p.y, p.reason) for p in poses]
         code, reply = _pose_set(config, "-2.2", "1.4", "20", "--std", "0.5")
         assert code == 0 and reply["ok"], reply
-        pose = request_pose(client, frames, 11)
+        pose, _ = first_valid_pose(client, frames, 11)  # confirmed over a few frames
         assert pose.header.valid and _near(pose, MINUS_X), pose
     finally:
         infer.stop()
