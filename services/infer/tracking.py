@@ -80,8 +80,10 @@ class Tracker:
     def handover(self) -> "Tracker":
         """A tracker for another model on the same frames (a shadow candidate): it acquires with this one's
         pose as the evidence, or the configured start without one."""
-        prior = self.tracked_prior()
-        if prior is None and self.previous is not None:
+        # The active model's latest pose, as of the shadow's first frame (a track's own time may be seconds old
+        # when the active model is one without a track).
+        prior = None
+        if self.previous is not None:
             prior = acquire.Prior(source="pit", pose=np.array(self.previous), std_m=0.5, yaw_std_rad=0.35)
         tracker = Tracker(max_lost_frames=self.max_lost_frames, start=self.start)
         if prior is not None:
