@@ -1,8 +1,8 @@
 """Serving a stage's controls (the services table's queryables) off Zenoh's callback thread.
 
-The callback only queues the query; a thread of our own decodes the request, asks the stage's handler
-and replies, so a slow request (a model validation) never blocks Zenoh, and a bad request is counted
-like any bad message.
+The callback only queues the query; a thread of our own per control decodes the request, asks the
+stage's handler and replies, so a slow request (a model validation) never blocks Zenoh nor another
+control (a pose set while a push validates), and a bad request is counted like any bad message.
 """
 from __future__ import annotations
 
@@ -32,24 +32,29 @@ class ControlServer:
         self._reject = reject
         self._record_error = record_error
         self._stop = stop
-        self._queries: queue.Queue[tuple[Control, zenoh.Query]] = queue.Queue(maxsize=_QUEUE_DEPTH)
+        self._queues = {c.path: queue.Queue(maxsize=_QUEUE_DEPTH) for c in controls}
         self._queryables = [session.declare_queryable(c.key(robot_id), self._enqueue(c)) for c in controls]
-        self._thread = threading.Thread(target=self._serve, name=thread_name, daemon=True)
-        self._thread.start()
+        self._threads = [threading.Thread(target=self._serve, args=(c,), name=f"{thread_name}-{c.name}", daemon=True)
+                         for c in controls]
+        for thread in self._threads:
+            thread.start()
 
     def _enqueue(self, control: Control) -> Callable[[zenoh.Query], None]:
+        requests = self._queues[control.path]
+
         def on_query(query: zenoh.Query) -> None:
             try:
-                self._queries.put_nowait((control, query))
+                requests.put_nowait(query)
             except queue.Full:  # dropped: the caller's request times out and it may ask again
                 self._record_error("control", f"{control.path}: request queue full; request dropped")
 
         return on_query
 
-    def _serve(self) -> None:
+    def _serve(self, control: Control) -> None:
+        requests = self._queues[control.path]
         while not self._stop.is_set():
             try:
-                control, query = self._queries.get(timeout=_POLL_S)
+                query = requests.get(timeout=_POLL_S)
             except queue.Empty:
                 continue
             # Dropping the query finalises it; until then the asker does not get the reply (a query kept
@@ -77,6 +82,7 @@ class ControlServer:
             self._record_error("control", f"cannot answer {control.path}: {exc}")
 
     def close(self) -> None:
-        self._thread.join(timeout=5.0)
+        for thread in self._threads:
+            thread.join(timeout=5.0)
         for queryable in self._queryables:
             queryable.undeclare()

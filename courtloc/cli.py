@@ -12,7 +12,7 @@ from typing import NoReturn, Sequence
 
 from pydantic import ValidationError
 
-from courtloc import bench, doctor, export_cli, model_cli, preprocess_cli, shooter_cli, stage_cli, up_cli
+from courtloc import bench, doctor, export_cli, model_cli, pose_cli, preprocess_cli, shooter_cli, stage_cli, up_cli
 from courtloc.cli_errors import RUN_EXIT, USAGE_EXIT, UsageError
 from courtloc.foxglove import cli as foxglove_cli
 from courtloc.lab import eval_cli, localizer_cli
@@ -25,7 +25,7 @@ from courtloc.training import cli as training_cli
 
 # Each module here exposes `register(subparsers)`, adding its sub-command(s) with `set_defaults(func=...)`.
 COMMAND_MODULES: tuple[ModuleType, ...] = (
-    bench, sim_cli, shooter_cli, stage_cli, up_cli, model_cli, training_cli, eval_cli, localizer_cli,
+    bench, sim_cli, shooter_cli, stage_cli, up_cli, model_cli, pose_cli, training_cli, eval_cli, localizer_cli,
     preprocess_cli, security_cli, recording_cli, monitor_cli, export_cli, ros_cli, foxglove_cli, doctor,
 )
 

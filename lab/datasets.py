@@ -7,7 +7,12 @@ Layout (the paper authors' seed recordings and our twin-generated sets alike)::
 
 x, y are metres from the court centre; yaw = 2*asin(orientation_z) (a yaw-only quaternion with w >= 0).
 A `yaw` column, when present, is used as is. The recording of a frame is the CSV column `recording`
-when present, else the file-name prefix `img_YYYYMMDD_`.
+when present, else the file-name prefix `img_YYYYMMDD_` (seed recordings) or `img_synth_s{seed}_`
+(`courtloc dataset synth`: recording `synth_s{seed}`).
+
+A `courtloc dataset synth` folder also holds `synth_meta.json`: it gives the court the frames show
+(`Dataset.court`), the image kind (raw frames, or edge-dot images for `--kind edges`) and says the
+frames are independent poses, not a drive (`Dataset.sequential` is False: nothing to track between them).
 
 Images come in two kinds:
 - "dots": already preprocessed edge-dot images (white discs where the radial scan hit a line edge).
@@ -24,6 +29,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import json
 import logging
 import math
 import re
@@ -45,6 +51,9 @@ log = logging.getLogger(__name__)
 DEFAULT_CSV = "pose_data.csv"
 DOT_THRESHOLD = 128  # JPEG noise in the seed tops out near 15; dots are ~255.
 _RECORDING_PREFIX = re.compile(r"^img_(\d{8})_")
+_SYNTH_PREFIX = re.compile(r"^img_synth_s(\d+)_")
+SYNTH_META = "synth_meta.json"  # written by courtloc.sim.synth (the lab reads it, never imports the twin)
+_SYNTH_KINDS: dict[str, str] = {"raw": "raw", "edges": "dots"}
 ImageKind = Literal["dots", "raw"]
 
 
@@ -62,12 +71,31 @@ class LabelRow:
 
 
 def recording_of(filename: str) -> str:
-    """The recording id from a seed-style file name `img_YYYYMMDD_...` (the date part)."""
-    match = _RECORDING_PREFIX.match(Path(filename).name)
-    if not match:
-        raise DatasetError(f"cannot tell the recording of {filename!r}: no img_YYYYMMDD_ prefix and no "
-                           "'recording' column")
-    return match.group(1)
+    """The recording id from a seed-style file name `img_YYYYMMDD_...` (the date part), or `synth_s{seed}`
+    from a `courtloc dataset synth` name `img_synth_s{seed}_...`."""
+    name = Path(filename).name
+    match = _RECORDING_PREFIX.match(name)
+    if match:
+        return match.group(1)
+    synth = _SYNTH_PREFIX.match(name)
+    if synth:
+        return f"synth_s{synth.group(1)}"
+    raise DatasetError(f"cannot tell the recording of {filename!r}: no img_YYYYMMDD_ or img_synth_s<seed>_ prefix "
+                       "and no 'recording' column")
+
+
+def read_synth_meta(root: Path) -> dict[str, Any] | None:
+    """`synth_meta.json` of a `courtloc dataset synth` folder (None when absent)."""
+    path = Path(root) / SYNTH_META
+    if not path.is_file():
+        return None
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{path}: unreadable ({exc})") from None
+    if not isinstance(meta, dict) or meta.get("kind") not in _SYNTH_KINDS:
+        raise DatasetError(f"{path}: expected a JSON object with kind 'raw' or 'edges'")
+    return meta
 
 
 def read_labels(csv_path: Path) -> list[LabelRow]:
@@ -111,16 +139,29 @@ class Dataset:
     `dot_image(i)` is the full-frame 0/1 edge-dot image for frame i, whatever the image kind.
     """
 
-    def __init__(self, root: Path, csv_path: Path | None = None, kind: ImageKind = "dots",
+    def __init__(self, root: Path, csv_path: Path | None = None, kind: ImageKind | None = "dots",
                  images_subdir: str = "images", preprocessor: Any | None = None) -> None:
+        """`kind` None: what a synth folder's meta says, else "dots"."""
         self.root = Path(root)
         self.images_dir = self.root / images_subdir
         if not self.images_dir.is_dir():
             raise DatasetError(f"image folder not found: {self.images_dir}")
         self.csv_path = Path(csv_path) if csv_path else self.root / DEFAULT_CSV
+        self.synth_meta = read_synth_meta(self.root)
+        if self.synth_meta is not None:
+            synth_kind = _SYNTH_KINDS[self.synth_meta["kind"]]
+            if kind is not None and kind != synth_kind:
+                raise DatasetError(f"{self.root} is a 'dataset synth --kind {self.synth_meta['kind']}' folder: its images "
+                                   f"are {synth_kind}, not {kind} (leave out --kind)")
+            kind = synth_kind
+        kind = kind or "dots"
         if kind not in ("dots", "raw"):
             raise DatasetError(f"kind must be 'dots' or 'raw', got {kind!r}")
         self.kind: ImageKind = kind
+        # The court the frames show when the data says (synth); None: not recorded with the data.
+        self.court: str | None = self.synth_meta.get("court") if self.synth_meta else None
+        # Frames of one recording follow each other in time (a drive), or are independent poses (synth).
+        self.sequential = self.synth_meta is None
         self.rows = read_labels(self.csv_path)
         self.filenames = [r.filename for r in self.rows]
         self.xy = np.array([(r.x, r.y) for r in self.rows], dtype=np.float64)

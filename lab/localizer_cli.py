@@ -32,9 +32,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     build = ops.add_parser("build", help="write a package folder (model.onnx + court/camera/config JSON + README)")
     build.add_argument("--out", type=Path, required=True)
     build.add_argument("--court", default="seed-gazebo", help="packaged court name or court JSON path")
-    build.add_argument("--camera", default="seed-gazebo", help="packaged camera name or camera JSON path")
+    build.add_argument("--camera", help="packaged camera name or camera JSON path (default: the court's own, its "
+                       "default_camera)")
     build.add_argument("--config", type=Path, help="LocalizerConfig JSON (default: built-in defaults)")
     build.add_argument("--report", type=Path, help="crosseval JSON: its numbers go into the manifest and README")
+    build.add_argument("--no-band-bias", action="store_true", help="clear the config's thin-band bias (it is the "
+                       "renderer's or camera's: calibrated on other frames it does not apply)")
     build.add_argument("--name", default="courtloc-geometric")
     build.add_argument("--version", type=positive_int, default=1)
     build.set_defaults(func=_build)
@@ -75,7 +78,10 @@ def _config(path: Path | None):
 
 
 def _build(args: argparse.Namespace) -> int:
-    court, camera, config = load_court(args.court), load_camera(args.camera), _config(args.config)
+    court, config = load_court(args.court), _config(args.config)
+    camera = load_camera(args.camera or court.default_camera)
+    if args.no_band_bias:
+        config.fit.band_bias_widths, config.fit.band_bias_samples = [], []
     report = json.loads(args.report.read_text()) if args.report else None
     metrics, data = {}, None
     if report:

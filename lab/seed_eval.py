@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+import math
 import time
 
 import numpy as np
@@ -25,6 +26,7 @@ import numpy as np
 from courtloc.lab import band_bias_calibration
 from courtloc.lab.metrics import compute_metrics
 from courtloc.lab.seed_frames import SeedFrames, frame_time
+from courtloc.localizer import acquire
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.geometric import GeometricLocalizer
@@ -115,10 +117,15 @@ def tune(court: Court, camera: CameraModel, frames: SeedFrames, indices: np.ndar
 def run_sequence(localizer: GeometricLocalizer, projector: FloorProjector, frames: SeedFrames,
                  indices: np.ndarray, tracking: bool = True) -> dict:
     """Localise frames in order. With tracking, as the robot would: the motion filter's state passes
-    from frame to frame (GeometricLocalizer.track; its rules drop a lost track). Without: every frame
+    from frame to frame (GeometricLocalizer.track; its rules drop a lost track), starting from the first
+    frame's labelled pose as the configured start (0.5 m, 20 degrees: what a team knows of where it puts the
+    robot; without one, the court's point symmetry leaves every frame ambiguous). Without: every frame
     is a cold start (global search)."""
     poses, valid, modes, ms = [], [], [], []
     state = None
+    if tracking and len(indices):
+        state = acquire.Acquiring(prior=acquire.Prior(source="start", pose=frames.truth[indices[0]].copy(),
+                                                      std_m=0.5, yaw_std_rad=math.radians(20.0)))
     for i in indices:
         h = frames.hits[i]
         t0 = time.perf_counter()

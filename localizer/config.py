@@ -88,7 +88,45 @@ class MotionConfig(BaseModel):
     max_lost_frames: int = Field(10, ge=0, description="frames without a usable fit before the court is searched "
                                  "again (the last pose still picks the symmetry twin)")
     max_gap_s: float = Field(1.0, gt=0, description="a longer gap between frames also searches the court again")
+    max_track_std_m: float = Field(0.5, gt=0, description="a track known worse than this (worst-direction position "
+                                   "std, e.g. after riding degenerate views) is dropped: a valid fit near it would be "
+                                   "a new acquisition, not evidence for the track")
     frame_period_s: float = Field(0.085, gt=0, description="assumed time between frames that carry no time")
+
+
+class AcquireConfig(BaseModel):
+    """Acquisition without a track (acquire.py): hypotheses, the evidence that decides between them, and
+    the frames a decision must hold before the first valid pose."""
+
+    model_config = ConfigDict(extra="forbid")
+    tie_ratio: float = Field(1.5, ge=1, description="a valid fit within this factor of the best cost is a hypothesis")
+    tie_abs: float = Field(0.02, ge=0, description="... plus this much cost (a near-perfect best fit)")
+    max_hypotheses: int = Field(8, ge=1)
+    merge_m: float = Field(0.3, gt=0, description="hypotheses closer than this (and merge_rad) are one")
+    merge_rad: float = Field(0.15, gt=0)
+    drop_lost_frames: int = Field(3, ge=1, description="a hypothesis without a usable fit this many frames dies")
+    confirm_frames: int = Field(3, ge=1, description="frames a decided hypothesis must answer valid before the "
+                                "track starts")
+    confirm_frames_tight: int = Field(3, ge=1, description="... when a pose prior within tight_prior_m decided")
+    confirm_frames_kidnap: int = Field(10, ge=1, description="... when a kidnap prior decided (it admits wrong "
+                                       "hypotheses metres away: the view must change before one is trusted)")
+    tight_prior_m: float = Field(1.0, gt=0, description="a pose prior this well known (std, grown by its age) is "
+                                 "tight")
+    research_frames: int = Field(15, ge=1, description="while undecided, search the court again this often")
+    motion_sigma_mps: float = Field(0.5, gt=0, description="a pose prior's position std grows this much per second")
+    yaw_sigma_rps: float = Field(0.75, gt=0, description="... and its heading std, radians per second")
+    prior_gate_chi2: float = Field(16.0, gt=0, description="a hypothesis farther from a pose prior (d^2) is not "
+                                   "explained by it")
+    lost_std_m: float = Field(0.5, gt=0, description="a lost track's pose is a prior at least this wide (a track "
+                              "dropped after degenerate views can sit on a parallel line 1.85 m away, its std unaware)")
+    decide_chi2: float = Field(9.0, gt=0, description="the hypothesis a pose prior decides for must lie within this "
+                               "d^2 of it (3 sigma): farther, the truth may be a pose the search could not pin down")
+    kidnap_frames: int = Field(15, ge=1, description="frames a lost track's pose must explain no hypothesis before "
+                               "it is taken for a kidnap (the truth may just not be found yet in a degenerate view)")
+    kidnap_sigma_m: float = Field(0.0, ge=0, description="a lost track's pose that explains no hypothesis (the robot "
+                                  "was moved) is kept as a prior this wide, heading unknown (0: dropped)")
+    decide_log_ratio: float = Field(4.6, gt=0, description="the prior decides when the best hypothesis is this much "
+                                    "more likely (log) than every other (4.6: 100 to 1)")
 
 
 class LocalizerConfig(BaseModel):
@@ -97,7 +135,8 @@ class LocalizerConfig(BaseModel):
     edge_offset_px: float = Field(0.2, description="hits sit this far beyond the paint edge along the image ray")
     max_range_m: float = Field(12.0, gt=0)
     symmetry: SymmetryMode = "previous"
-    half: Half = Field("+x", description="the robot's half, used by 'half' mode and to start 'previous' mode")
+    half: Half = Field("+x", description="the robot's half in 'half' mode (the other modes take the start from the "
+                       "caller: acquire.Prior)")
     centre_margin_m: float = Field(0.3, ge=0,
                                    description="within this of x=0 the half rule picks by heading instead")
     track_yaw_starts_rad: float = Field(0.15, ge=0, description="tracking also starts this far either side in yaw "
@@ -107,3 +146,4 @@ class LocalizerConfig(BaseModel):
     motion: MotionConfig = MotionConfig()
     quality: QualityConfig = QualityConfig()
     search: SearchConfig = SearchConfig()
+    acquire: AcquireConfig = AcquireConfig()

@@ -227,6 +227,16 @@ class CourtField:
         thin = (nearest < THIN_BAND_HALF_WIDTH_M) & (dist * self.resolution <= near_m)
         return np.where(paint, inside, np.where(thin, nearest, 0.0)).astype(np.float32)
 
+    def point_symmetric(self, tolerance_m: float | None = None) -> bool:
+        """Whether the paint is the same rotated half a turn about the centre (then every pose and its mirror
+        (-x, -y, yaw + pi) see the same lines). Tolerance: two grid cells by default (arcs are sampled)."""
+        v = self.values
+        ny, nx = v.shape
+        centred = (abs(self.x0 + (nx - 1) * self.resolution + self.x0) < 1e-9
+                   and abs(self.y0 + (ny - 1) * self.resolution + self.y0) < 1e-9)
+        tol = 2 * self.resolution if tolerance_m is None else tolerance_m
+        return bool(centred and np.abs(v - v[::-1, ::-1]).max() <= tol)
+
     def coarse(self, factor: int, clip: float) -> "CourtField":
         """A subsampled copy with |value| clipped, for the global search (blur-free: min over blocks)."""
         ny, nx = self.values.shape

@@ -14,10 +14,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Union
 
 import numpy as np
 
-from courtloc.localizer import motion
+from courtloc.localizer import acquire, motion
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.fit import FitResult, fit_pose, fit_poses, quality_score
@@ -37,7 +38,9 @@ class LocalizeResult:
     pose: np.ndarray  # (3,) x, y metres, yaw rad
     fit: FitResult
     mode: str  # "track" or "global"
-    alternatives: list[np.ndarray] = field(default_factory=list)  # the mirror twin in "both" mode
+    alternatives: list[np.ndarray] = field(default_factory=list)  # the mirror twin in "both" mode; the other
+    # hypotheses while acquiring
+    status: str = ""  # why an answer is invalid beyond its fit: "ambiguous", "searching", "confirming"
 
     @property
     def valid(self) -> bool:
@@ -55,14 +58,23 @@ class LocalizeResult:
         return self.fit.valid or (self.mode == "track" and self.fit.n_inliers >= 12 and self.fit.inlier_ratio >= 0.5)
 
 
+# What a tracker passes from frame to frame: a track, an acquisition (with its prior), or None (no prior).
+TrackState = Union[motion.MotionState, acquire.Acquiring, None]
+
+
 @dataclass(frozen=True)
 class TrackStep:
     """One tracked frame: the answer (`result.pose` fused; `result.fit.pose` the frame's own fit; a fused
     frame's `result.fit` stds, validity and quality are the posterior's, see `_fused`) and
-    the motion state to pass with the next frame (None: no track yet, the next frame searches the court)."""
+    the state to pass with the next frame (a track, or an acquisition: see `GeometricLocalizer.track`)."""
 
     result: LocalizeResult
-    state: motion.MotionState | None
+    state: TrackState
+
+
+def _position_cov(fit: FitResult) -> np.ndarray | None:
+    cov = fit.covariance
+    return None if cov is None or not np.all(np.isfinite(cov)) else np.asarray(cov, np.float64)[:2, :2].copy()
 
 
 class GeometricLocalizer:
@@ -78,6 +90,9 @@ class GeometricLocalizer:
         self.field = field or CourtField.from_court(court, self.config.field_resolution_m)
         self.geometry = HitGeometry(camera)
         self.search = CoarseSearch(self.field, court.area_half_extent_m, self.config.search)
+        # On a point-symmetric court every hypothesis has a twin that fits exactly as well: acquisition keeps
+        # both alive, whatever its tracking does to either.
+        self.symmetric = self.field.point_symmetric()
 
     def localize_points(self, floor_points: np.ndarray, previous: np.ndarray | None = None) -> LocalizeResult:
         """Pose from (N, 2) robot-frame floor points (NaN rows ignored). Points carry no pixels, hence no scan
@@ -101,18 +116,31 @@ class GeometricLocalizer:
             best = fit_pose(self.field, hits, np.zeros(3), cfg.fit, cfg.quality)
         return self._finish(best, "global", None if hint is None else np.asarray(hint, np.float64))
 
-    def track(self, hits: ProjectedHits, state: motion.MotionState | None, t: float | None = None) -> TrackStep:
+    def track(self, hits: ProjectedHits, state: TrackState, t: float | None = None) -> TrackStep:
         """One frame of a track at time t (seconds; None: frames `motion.frame_period_s` apart).
 
-        The fit starts from the state's prediction and is fused with it by covariance; a frame
-        without a usable fit answers the prediction (invalid). The reset rules are motion.py's.
+        With a track (`MotionState`): the fit starts from the state's prediction and is fused with it by
+        covariance; a frame without a usable fit answers the prediction (invalid). The reset rules are
+        motion.py's. Without one (None, or `acquire.Acquiring` carrying a prior): acquisition, whose
+        frames are invalid until one hypothesis wins on evidence (acquire.py). A lost track becomes an
+        acquisition whose prior is its last pose.
         """
+        if state is None:
+            state = acquire.Acquiring()
+        if isinstance(state, motion.MotionState) and motion.is_lost(state, t, self.config.motion):
+            state = acquire.Acquiring(prior=self.lost_prior(state))
+        if isinstance(state, acquire.Acquiring):
+            return self._acquire(hits, state, t)
+        return self._step(hits, state, t)
+
+    def lost_prior(self, state: motion.MotionState) -> acquire.Prior:
+        """A lost track's last pose as the prior of the acquisition after it."""
+        return acquire.Prior(source="track", pose=state.pose,
+                             std_m=max(state.position_std_m, self.config.acquire.lost_std_m),
+                             yaw_std_rad=math.sqrt(max(float(state.cov[2, 2]), 0.0)), t=state.t)
+
+    def _step(self, hits: ProjectedHits, state: motion.MotionState, t: float | None) -> TrackStep:
         mcfg = self.config.motion
-        if state is None or motion.is_lost(state, t, mcfg):
-            res = self.localize(hits, None, hint=None if state is None else state.pose)
-            if res.valid:
-                return TrackStep(res, motion.start(res.pose, res.fit.covariance, t, mcfg))
-            return TrackStep(res, None if state is None else motion.coast(state, mcfg))
         pred = motion.predict(state, t, mcfg)
         res = self.localize(hits, pred.pose)
         r = motion.measurement_cov(res.fit.covariance, mcfg)
@@ -124,6 +152,146 @@ class GeometricLocalizer:
             if res.valid:  # the evidence disagrees with the track: restart the track there
                 return TrackStep(res, motion.start(res.pose, res.fit.covariance, t, mcfg))
         return TrackStep(self._answer(res, pred.pose, invalid=True), motion.coast(pred, mcfg))
+
+    # ---- acquisition (acquire.py has the rule) ------------------------------------------------------
+    def _acquire(self, hits: ProjectedHits, state: acquire.Acquiring, t: float | None) -> TrackStep:
+        cfg, acfg = self.config, self.config.acquire
+        prior = None if state.prior is None else state.prior.at(t)
+        live: list[tuple[LocalizeResult, acquire.Hypothesis]] = []
+        for h in state.hypotheses:
+            step = self._step(hits, h.state, t)
+            if step.state is not None and step.state.lost < acfg.drop_lost_frames:
+                # Pinned once a fit of it is valid: from then on the view has pinned where it is.
+                live.append((step.result, acquire.Hypothesis(step.state, h.origin, h.origin_t, h.origin_cov,
+                                                             h.pinned or step.result.valid)))
+        since = state.since_search + 1
+        searched: FitResult | None = None
+        blocked = False
+        # Search again when there is nothing to track, every research_frames frames, and on every frame
+        # that would confirm a decision: a view an unpinnable pose explains better must not confirm one.
+        if not live or since >= acfg.research_frames or state.agreed > 0:
+            found, searched, blocked = self._search_hypotheses(hits, t)
+            live += found
+            since = 0
+        live = self._merge(self._with_twins(live))
+        fitted = [res.fit.cost for res, h in live if h.state.lost == 0]
+        if fitted:  # a hypothesis fitting clearly worse than the best one this frame dies
+            limit = min(fitted) * acfg.tie_ratio + acfg.tie_abs
+            live = [(res, h) for res, h in live if h.state.lost > 0 or res.fit.cost <= limit]
+        live = live[:acfg.max_hypotheses]
+        hypotheses = tuple(h for _, h in live)
+        if not live:
+            fit = searched or fit_pose(self.field, hits, np.zeros(3), cfg.fit, cfg.quality)
+            # Nothing fits: the answer (invalid) is the prior's pose when there is one, not a fit anywhere.
+            pose = prior.pose if prior is not None and prior.pose is not None else fit.pose
+            res = self._answer(LocalizeResult(pose=fit.pose, fit=fit, mode="global"), pose, invalid=True)
+            return TrackStep(self._status(res, "searching"), acquire.Acquiring(prior, (), 0, since))
+        half = cfg.half if cfg.symmetry == "half" else None
+        # While a decision is being confirmed the prior is judged at the time it was made: its spread growing
+        # frame by frame must not undo a decision the next frames only have to confirm.
+        t_eval = state.decided_t if state.agreed > 0 and state.decided_t is not None else t
+        decision = acquire.decide(list(hypotheses), prior, half, t_eval, acfg, cfg.centre_margin_m)
+        unexplained = 0 if decision.explained else state.unexplained + 1
+        if unexplained >= acfg.kidnap_frames and prior is not None and prior.source in ("track", "kidnap"):
+            unexplained = 0
+            # The view contradicts the lost track's last pose: the robot was moved (acquire.py, rule 2).
+            prior = (acquire.Prior("kidnap", pose=prior.pose, std_m=max(prior.std_m, acfg.kidnap_sigma_m), t=prior.t)
+                     if prior.source == "track" and acfg.kidnap_sigma_m > 0 else None)
+            decision = acquire.decide(list(hypotheses), prior, half, t_eval, acfg, cfg.centre_margin_m)
+            if not decision.explained:
+                prior = None
+                decision = acquire.decide(list(hypotheses), None, half, t_eval, acfg, cfg.centre_margin_m)
+        poses = [h.pose for h in hypotheses]
+        if decision.index is None:
+            best = self._nearest(list(hypotheses), prior, t)
+            res = self._answer(live[best][0], poses[best], invalid=True)
+            res = LocalizeResult(pose=res.pose, fit=res.fit, mode=res.mode, status="ambiguous",
+                                 alternatives=[p for i, p in enumerate(poses) if i != best])
+            return TrackStep(res, acquire.Acquiring(prior, hypotheses, 0, since, unexplained=unexplained))
+        res, chosen = live[decision.index]
+        # The same hypothesis as last frame: within what a robot moves in a frame or two.
+        same = state.decided_pose is not None and math.hypot(*(state.decided_pose[:2] - chosen.pose[:2])) <= 0.5
+        agreed = (state.agreed + 1 if same else 1) if res.valid and not blocked else 0
+        needed = (acfg.confirm_frames_kidnap if decision.kidnap else
+                  acfg.confirm_frames_tight if decision.tight else acfg.confirm_frames)
+        if agreed >= needed and chosen.state.lost == 0:
+            return TrackStep(LocalizeResult(pose=res.pose, fit=res.fit, mode="acquired"), chosen.state)
+        others = [p for i, p in enumerate(poses) if i != decision.index]
+        res = self._answer(res, chosen.pose, invalid=True)
+        res = LocalizeResult(pose=res.pose, fit=res.fit, mode=res.mode, alternatives=others, status="confirming")
+        return TrackStep(res, acquire.Acquiring(prior, hypotheses, agreed, since, decided_pose=chosen.pose,
+                                                decided_t=t_eval if agreed > 1 else t, unexplained=unexplained))
+
+    def _search_hypotheses(self, hits: ProjectedHits,
+                           t: float | None) -> tuple[list[tuple[LocalizeResult, acquire.Hypothesis]], FitResult | None,
+                                                     bool]:
+        """Every valid global-search fit within the tie of the best, and each one's mirror twin; the
+        lowest-cost fit of all (what a frame without hypotheses answers, invalid); and whether an invalid fit
+        explains the view clearly better than every valid one (then no hypothesis is evidence)."""
+        acfg = self.config.acquire
+        candidates = self.search.candidates(hits)
+        if not candidates:
+            return [], None, False
+        firsts = self._fit_starts(hits, np.array(candidates))
+        lowest = min(firsts, key=lambda f: f.cost)
+        q = self.config.quality
+        # Valid fits, and the ones the view cannot pin down (e.g. only parallel lines: free along them) but
+        # that fit well: the latter are never decided, they keep a near-miss elsewhere from being decided.
+        ok = sorted((f for f in firsts if f.valid or (f.n_inliers >= q.min_inliers and f.inlier_ratio >= 0.5)),
+                    key=lambda f: f.cost)
+        if not any(f.valid for f in ok):
+            return [], lowest, False
+        limit = ok[0].cost * acfg.tie_ratio + acfg.tie_abs
+        ok = [f for f in ok if f.cost <= limit][:acfg.max_hypotheses]
+        twins = self._fit_starts(hits, np.array([mirror(f.pose) for f in ok]))
+        fits = sorted([f for f in ok + twins if f.cost <= limit and (f.valid or f.inlier_ratio >= 0.5)],
+                      key=lambda f: f.cost)
+        mcfg = self.config.motion
+        found = [(LocalizeResult(pose=f.pose, fit=f, mode="global"),
+                  acquire.Hypothesis(motion.start(f.pose, f.covariance, t, mcfg), f.pose.copy(), t, _position_cov(f),
+                                     f.valid)) for f in fits]
+        return found, lowest, not ok[0].valid
+
+    def _with_twins(self, live: list[tuple[LocalizeResult, acquire.Hypothesis]]) -> list[tuple[LocalizeResult, acquire.Hypothesis]]:
+        """Each hypothesis and, on a point-symmetric court, its mirror twin (`_merge` drops duplicates)."""
+        if not self.symmetric:
+            return live
+        twins = []
+        for res, h in live:
+            pose = mirror(res.pose)
+            twins.append((LocalizeResult(pose=pose, fit=FitResult(**{**res.fit.__dict__, "pose": mirror(res.fit.pose)}),
+                                         mode=res.mode, status=res.status),
+                          acquire.Hypothesis(motion.mirrored(h.state), mirror(h.origin), h.origin_t,
+                                             None if h.origin_cov is None else h.origin_cov.copy(), h.pinned)))
+        return live + twins
+
+    def _merge(self, live: list[tuple[LocalizeResult, acquire.Hypothesis]]) -> list[tuple[LocalizeResult, acquire.Hypothesis]]:
+        """Hypotheses that converged on one pose are one (the better-fitting one stays)."""
+        acfg = self.config.acquire
+        out: list[tuple[LocalizeResult, acquire.Hypothesis]] = []
+        for res, h in sorted(live, key=lambda rh: (rh[1].state.lost, rh[0].fit.cost)):
+            for k, (kept_res, kept) in enumerate(out):
+                if acquire.same_pose(h.pose, kept.pose, acfg):
+                    if h.origin_t is not None and kept.origin_t is not None and h.origin_t < kept.origin_t:
+                        # One pose tracked since the earlier sighting: that sighting is its evidence.
+                        out[k] = (kept_res, acquire.Hypothesis(kept.state, h.origin, h.origin_t, h.origin_cov,
+                                                               kept.pinned or h.pinned))
+                    break
+            else:
+                out.append((res, h))
+        return out
+
+    def _nearest(self, hypotheses: list[acquire.Hypothesis], prior: acquire.Prior | None, t: float | None) -> int:
+        """The hypothesis an undecided frame answers (invalid): nearest a pose prior, else the best fit."""
+        if prior is None or prior.pose is None:
+            return 0
+        return min(range(len(hypotheses)), key=lambda i: acquire.prior_distance2(
+            prior, hypotheses[i].origin, hypotheses[i].origin_t, self.config.acquire))
+
+    @staticmethod
+    def _status(res: LocalizeResult, status: str) -> LocalizeResult:
+        return LocalizeResult(pose=res.pose, fit=res.fit, mode=res.mode, alternatives=res.alternatives,
+                              status=status)
 
     def _fused(self, res: LocalizeResult, state: motion.MotionState) -> LocalizeResult:
         """A usable fit fused into the filter: the answer is the posterior pose, and so are its stds.

@@ -15,12 +15,13 @@ file name inside the package folder (manifest.package_part). Packages are built 
 from __future__ import annotations
 
 import hashlib
+import importlib.resources
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
 from courtloc.localizer.config import LocalizerConfig
-from courtloc.localizer.manifest import MODEL_FILE, Manifest, ManifestError, package_part
+from courtloc.localizer.manifest import MODEL_FILE, Manifest, ManifestError, package_part, read_manifest
 from courtloc.localizer.model_file import ModelFile
 from courtloc.world.camera import CameraModel, load_camera
 from courtloc.world.court import Court, load_court
@@ -69,3 +70,29 @@ def load_package(model: ModelFile | Path, config_override: LocalizerConfig | Non
     camera = load_camera(parts["camera"])
     config = config_override or LocalizerConfig.model_validate(json.loads(parts["config"].read_text()))
     return Package(folder=folder, manifest=manifest, court=court, camera=camera, config=config)
+
+
+def bundled_root() -> Path:
+    """The folder of the packages shipped with courtloc (models/ in the source tree)."""
+
+    return Path(str(importlib.resources.files("courtloc.models")))
+
+
+def bundled_packages() -> dict[tuple[str, str], Path]:
+    """(court, camera) of each shipped package's manifest -> its folder."""
+    out: dict[tuple[str, str], Path] = {}
+    for folder in sorted(p for p in bundled_root().iterdir() if (p / MODEL_FILE).is_file()):
+        manifest = read_manifest(folder / MODEL_FILE)
+        out.setdefault((manifest.court, manifest.camera), folder)
+    return out
+
+
+def bundled_package(court: str, camera: str) -> Path:
+    """The shipped package built for this court and camera; ManifestError naming what ships otherwise."""
+    packages = bundled_packages()
+    if (court, camera) not in packages:
+        shipped = ", ".join(f"{c} / {m}" for c, m in sorted(packages)) or "none"
+        raise ManifestError(f"no bundled localizer package for court {court!r} with camera {camera!r} (shipped: "
+                            f"{shipped}); build one with `courtloc localizer build --court {court} --camera {camera}` "
+                            f"and push it")
+    return packages[(court, camera)]

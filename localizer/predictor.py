@@ -48,6 +48,7 @@ class Prediction(BaseModel):
     position_std_m: Optional[float] = None
     alternatives: list[tuple[float, float, float]] = Field(default_factory=list)  # symmetry "both"
     trackable: bool = False  # fine as the next frame's `previous` even when not valid (degenerate view)
+    reason: str = ""  # why not valid beyond the fit's quality: "ambiguous", "searching", "confirming"
 
 
 class Predictor(Protocol):
@@ -153,7 +154,7 @@ def _prediction(res: LocalizeResult) -> Prediction:
                       n_hits=res.fit.n_hits, n_inliers=res.fit.n_inliers,
                       position_std_m=res.fit.position_std_m if math.isfinite(res.fit.position_std_m) else None,
                       alternatives=[tuple(float(v) for v in a) for a in res.alternatives],
-                      trackable=res.trackable)
+                      trackable=res.trackable, reason=res.status)
 
 
 class PaperPredictor:

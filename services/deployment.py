@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
 from pathlib import Path
-from typing import Sequence
+from typing import Optional, Sequence
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
@@ -21,9 +22,11 @@ from courtloc.common.runtime import Service
 from courtloc.common.security import with_identity
 from courtloc.common.services_table import SERVICES, check_robot_id
 from courtloc.scan.config import PreprocessConfig
-from courtloc.services.camera.config import CameraConfig
-from courtloc.services.infer.config import InferConfig
+from courtloc.services.camera.config import CameraConfig, sim_source_config
+from courtloc.services.infer.config import InferConfig, StartConfig
 from courtloc.services.shooter_bridge.config import ShooterConfig
+from courtloc.world.camera import load_camera
+from courtloc.world.court import load_court
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
@@ -61,7 +64,9 @@ class DeploymentConfig(BaseModel):
 
     robot_id: str = "robot1"
     court: str = Field(default="seed-gazebo", description="the court every stage assumes unless its own "
-                       "section names one (sim camera, shooter target)")
+                       "section names one (sim camera, shooter target, the localizer package the infer stage serves)")
+    camera_model: Optional[str] = Field(default=None, description="the robot's camera model (name or JSON path) "
+                                        "when it is not the court's own (`default_camera` of the court file)")
     zenoh: ZenohConfig = Field(default_factory=ZenohConfig)
     router: RouterConfig = Field(default_factory=RouterConfig)
     launcher: LauncherConfig = Field(default_factory=LauncherConfig)
@@ -76,8 +81,17 @@ class DeploymentConfig(BaseModel):
 
     @model_validator(mode="after")
     def _one_court_by_default(self) -> "DeploymentConfig":
+        court_name, camera_name = _court_and_camera(self.court, self.camera_model)
+        infer_update = {k: v for k, v in (("court", court_name), ("camera", camera_name))
+                        if k not in self.infer.model_fields_set}
         if "court" not in self.camera.sim:
             self.camera.sim = {**self.camera.sim, "court": self.court}
+        if self.camera_model is not None and "camera" not in self.camera.sim:
+            self.camera.sim = {**self.camera.sim, "camera": self.camera_model}
+        if self.camera.source == "sim" and "start" not in self.infer.model_fields_set:
+            # The simulated robot starts where its trajectory does: the start a team would configure.
+            infer_update["start"] = sim_start(sim_source_config(self.camera))
+        self.infer = self.infer.model_copy(update=infer_update)
         target = self.shooter_bridge.target
         if "court" not in target.model_fields_set and target.ring is None:
             self.shooter_bridge = self.shooter_bridge.model_copy(
@@ -102,6 +116,25 @@ class DeploymentConfig(BaseModel):
             raise ValueError(f"zenoh.listen {self.zenoh.listen} is reachable beyond this machine without "
                              "[zenoh.security], or set insecure = true")
         return self
+
+
+def _court_and_camera(court: str, camera: str | None) -> tuple[str, str]:
+    """Names of the deployment's court and camera, as packages' manifests carry them (files are read once)."""
+    model = load_court(court)
+    return model.name, load_camera(camera or model.default_camera).name
+
+
+def sim_start(sim: SimSourceConfig) -> StartConfig | None:  # noqa: F821 - the twin's config type
+    """Where the simulated robot starts, as a start with a generous spread (the stages come up while it
+    already drives: the infer stage's first frame can be seconds into the run)."""
+    if sim.trajectory == "waypoints" and len(sim.waypoints) >= 2:
+        first, second = sim.waypoints[0], sim.waypoints[1]
+        yaw = first[2] if len(first) > 2 else math.atan2(second[1] - first[1], second[0] - first[0])
+        return StartConfig(x=first[0], y=first[1], yaw_deg=math.degrees(yaw), std_m=1.5, yaw_std_deg=60.0)
+    if sim.trajectory == "random_walk":  # at `start`, else RandomWalkTrajectory's centre facing +x
+        x, y, yaw = sim.start or (0.0, 0.0, 0.0)
+        return StartConfig(x=x, y=y, yaw_deg=math.degrees(yaw), std_m=1.5, yaw_std_deg=60.0)
+    return None
 
 
 def load_deployment(path: Path | None) -> DeploymentConfig:

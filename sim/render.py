@@ -52,6 +52,9 @@ class RenderOptions(BaseModel):
     floor_variants: int = Field(4, ge=1, le=32)
     occluders: OccluderOptions = OccluderOptions()
     jpeg_quality: Optional[int] = Field(None, ge=10, le=100)
+    motion_blur_s: float = Field(0.0, ge=0.0, le=0.1, description="shutter open time: the frame averages the "
+                                 "views over the motion of the last this-many seconds (0: no motion blur)")
+    motion_blur_samples: int = Field(4, ge=2, le=16, description="views averaged over the shutter time")
 
     @model_validator(mode="after")
     def _check_ranges(self) -> "RenderOptions":
@@ -133,18 +136,38 @@ class Renderer:
         self._sky_mask3 = np.repeat(self._sky_mask[self._sky_split : self._sky_rows, :, None], 3, axis=2)
 
     # ---- per frame ------------------------------------------------------------------------------
-    def render(self, pose: Pose, options: RenderOptions | None = None, rng: np.random.Generator | None = None) -> np.ndarray:
-        """640x480 (the camera's size) BGR uint8 frame at pose (x, y, yaw); same seed, same frame."""
+    def render(self, pose: Pose, options: RenderOptions | None = None, rng: np.random.Generator | None = None,
+               shutter_open_pose: Pose | None = None) -> np.ndarray:
+        """640x480 (the camera's size) BGR uint8 frame at pose (x, y, yaw); same seed, same frame.
+
+        With `options.motion_blur_s` > 0 and `shutter_open_pose` (where the robot was when the shutter
+        opened, motion_blur_s before `pose`), the scene is the mean of views along that motion."""
         options = options or RenderOptions()
         rng = rng if rng is not None else np.random.default_rng(0)
         texture = self._texture
         if options.floor_texture:
             texture = self._variant(int(rng.integers(options.floor_variants)))
-        frame = self._warp_floor(texture, pose)
-        self._draw_sky(frame, pose[2])
+        if options.motion_blur_s > 0 and shutter_open_pose is not None and shutter_open_pose != tuple(pose):
+            frame = self._motion_blurred(texture, shutter_open_pose, pose, options.motion_blur_samples)
+        else:
+            frame = self._view(texture, pose)
         if options.occluders.max_count:
             self._draw_occluders(frame, options.occluders, rng)
         return self._photometric(frame, options, rng)
+
+    def _view(self, texture: np.ndarray, pose: Pose) -> np.ndarray:
+        frame = self._warp_floor(texture, pose)
+        self._draw_sky(frame, pose[2])
+        return frame
+
+    def _motion_blurred(self, texture: np.ndarray, start: Pose, end: Pose, samples: int) -> np.ndarray:
+        """Mean of `samples` views evenly along start -> end (yaw the short way round)."""
+        turn = math.atan2(math.sin(end[2] - start[2]), math.cos(end[2] - start[2]))
+        total = np.zeros((self.camera.height, self.camera.width, 3), np.float32)
+        for s in np.linspace(0.0, 1.0, samples):
+            view = (start[0] + s * (end[0] - start[0]), start[1] + s * (end[1] - start[1]), start[2] + s * turn)
+            cv2.accumulate(self._view(texture, view), total)
+        return cv2.convertScaleAbs(total, alpha=1.0 / samples)
 
     def _warp_floor(self, texture: np.ndarray, pose: Pose) -> np.ndarray:
         x, y, yaw = pose

@@ -6,14 +6,15 @@ frame, and each read returns the frame together with the TRUE pose it was render
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 from typing import Literal, Optional
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from courtloc.sim.render import Renderer, RenderOptions
-from courtloc.sim.trajectory import CsvTrajectory, RandomWalkTrajectory, WaypointTrajectory
+from courtloc.sim.trajectory import CsvTrajectory, KidnapTrajectory, RandomWalkTrajectory, WaypointTrajectory
 from courtloc.world.camera import Pose, load_camera
 from courtloc.world.court import load_court
 
@@ -37,6 +38,33 @@ class SimSourceConfig(BaseModel):
     seed: int = 0
     render: RenderOptions = RenderOptions()
     fps: float = Field(30.0, gt=0, le=1000)
+    start: Optional[list[float]] = Field(None, description="random walk: start pose [x, y, yaw] (default the centre, "
+                                         "facing +x)")
+    kidnaps_s: list[float] = Field(default_factory=list, description="times (s) the robot is teleported; after each it "
+                                   "random-walks from the new pose")
+    kidnap_same_half: bool = Field(True, description="teleport within the half the robot is in (see KidnapTrajectory)")
+    outages_s: list[tuple[float, float]] = Field(default_factory=list, description="[start, end) times (s) the camera "
+                                                 "shows nothing usable; the robot keeps moving")
+    outage: Literal["dark", "blocked"] = Field("dark", description="dark: lens capped (black + sensor noise); "
+                                               "blocked: something right in front of the lens")
+
+    @field_validator("start")
+    @classmethod
+    def _start_is_a_pose(cls, value: Optional[list[float]]) -> Optional[list[float]]:
+        if value is not None and len(value) != 3:
+            raise ValueError(f"start must be [x, y, yaw], got {value}")
+        return value
+
+    @field_validator("outages_s")
+    @classmethod
+    def _outages_are_intervals(cls, value: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        for start, end in value:
+            if not 0 <= start < end:
+                raise ValueError(f"outage [{start}, {end}) must satisfy 0 <= start < end")
+        return value
+
+    def in_outage(self, t: float) -> bool:
+        return any(start <= t < end for start, end in self.outages_s)
 
 
 class SimSource:
@@ -82,6 +110,16 @@ class SimSource:
             raise RuntimeError("SimSource is not open: call open() first")
         return self._trajectory.pose_at(index / self.config.fps)
 
+    def _shutter_open_pose(self, index: int, pose: Pose) -> Pose | None:
+        """Where the robot was when the shutter opened (None: no motion blur, or a teleport in between)."""
+        exposure = self.config.render.motion_blur_s
+        if exposure <= 0:
+            return None
+        assert self._trajectory is not None
+        start = self._trajectory.pose_at(max(index / self.config.fps - exposure, 0.0))
+        # A teleport inside the exposure is not motion: the frame shows where the robot is now.
+        return start if math.hypot(start[0] - pose[0], start[1] - pose[1]) < 0.5 else None
+
     def read(self) -> tuple[np.ndarray, tuple[float, float, float]]:
         """The next frame (BGR uint8) and the true pose (x, y, yaw) it shows; time advances 1/fps."""
         if self._renderer is None:
@@ -92,9 +130,18 @@ class SimSource:
             raise ValueError(f"frame {index}: pose {pose} lies outside court {self.court.name!r}")
         # Each frame's randomisation depends only on (seed, frame index): reproducible from any start.
         rng = np.random.default_rng([self.config.seed, index])
-        frame = self._renderer.render(pose, self.config.render, rng)
+        if self.config.in_outage(index / self.config.fps):
+            frame = self._outage_frame(rng)
+        else:
+            frame = self._renderer.render(pose, self.config.render, rng, self._shutter_open_pose(index, pose))
         self.frame_index += 1
         return frame, (float(pose[0]), float(pose[1]), float(pose[2]))
+
+    def _outage_frame(self, rng: np.random.Generator) -> np.ndarray:
+        cam = self.camera
+        level = 6.0 if self.config.outage == "dark" else 60.0 + 40.0 * float(rng.random())
+        noise = rng.normal(level, 3.0, (cam.height, cam.width, 1))
+        return np.clip(np.repeat(noise, 3, axis=2), 0, 255).astype(np.uint8)
 
     @property
     def timestamp(self) -> float:
@@ -106,13 +153,28 @@ class SimSource:
         cfg = self.config
         hx, hy = court.area_half_extent_m
         where = f"court {court.name!r} (|x| <= {hx}, |y| <= {hy})"
+        first = self._first_trajectory(court, where)
+        if not cfg.kidnaps_s:
+            return first
+        return KidnapTrajectory(first, court, cfg.kidnaps_s, cfg.speed_mps, cfg.yaw_rate_rps, cfg.seed,
+                                cfg.margin_m, cfg.kidnap_same_half)
+
+    def _first_trajectory(self, court, where: str):
+        cfg = self.config
+        if cfg.start is not None and cfg.trajectory != "random_walk":
+            raise ValueError(f"start applies to the random walk only, not trajectory {cfg.trajectory!r}")
         if cfg.trajectory == "waypoints":
             for i, w in enumerate(cfg.waypoints):
                 if len(w) < 2 or not court.contains(w[0], w[1]):
                     raise ValueError(f"waypoints[{i}] = {w} lies outside {where}")
             return WaypointTrajectory(cfg.waypoints, cfg.speed_mps, cfg.yaw_rate_rps)
         if cfg.trajectory == "random_walk":
-            return RandomWalkTrajectory(court, cfg.speed_mps, cfg.yaw_rate_rps, cfg.seed, cfg.margin_m)
+            start = None
+            if cfg.start is not None:
+                if not court.contains(cfg.start[0], cfg.start[1]):
+                    raise ValueError(f"start {cfg.start} lies outside {where}")
+                start = (float(cfg.start[0]), float(cfg.start[1]), float(cfg.start[2]))
+            return RandomWalkTrajectory(court, cfg.speed_mps, cfg.yaw_rate_rps, cfg.seed, cfg.margin_m, start=start)
         if not cfg.csv_path:
             raise ValueError("csv_path is required for trajectory 'csv'")
         traj = CsvTrajectory(Path(cfg.csv_path), cfg.fps)

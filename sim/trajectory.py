@@ -157,3 +157,41 @@ class CsvTrajectory:
         y = float(np.interp(t, self.times, self.poses[:, 1]))
         yaw = wrap_angle(float(np.interp(t, self.times, self._yaw_unwrapped)))
         return x, y, yaw
+
+
+class KidnapTrajectory:
+    """A trajectory whose robot is picked up and put down elsewhere (teleported) at given times.
+
+    Before the first kidnap the robot follows `first`; after kidnap k it random-walks from a new pose drawn
+    for (seed, k): at least `min_jump_m` from where it was, with |x| >= `min_abs_x_m`, and — with
+    `same_half` — in the half it was in. A teleport into the other half of a point-symmetric court looks
+    exactly like one to the mirror twin, so only the configured side could ever tell them apart.
+    """
+
+    def __init__(self, first: Trajectory, court: Court, times_s: Sequence[float], speed: float, yaw_rate: float,
+                 seed: int, margin: float = 0.3, same_half: bool = True, min_jump_m: float = 1.5,
+                 min_abs_x_m: float = 1.0) -> None:
+        times = [float(t) for t in times_s]
+        if any(t <= 0 for t in times) or times != sorted(set(times)):
+            raise ValueError(f"kidnap times must be positive and increasing, got {list(times_s)}")
+        hx, hy = court.area_half_extent_m
+        if hx - margin <= min_abs_x_m:
+            raise ValueError(f"court {court.name!r} has no room for a kidnap target with |x| >= {min_abs_x_m} m")
+        self.times = times
+        self.segments: list[Trajectory] = [first]
+        for k, t in enumerate(times, start=1):
+            before = self.segments[-1].pose_at(t - (self.times[k - 2] if k > 1 else 0.0))
+            rng = np.random.default_rng([seed, k, 7])
+            for _ in range(1000):
+                x = float(rng.uniform(min_abs_x_m, hx - margin))
+                side = (1.0 if before[0] >= 0 else -1.0) if same_half else float(rng.choice([-1.0, 1.0]))
+                target = (side * x, float(rng.uniform(-hy + margin, hy - margin)), float(rng.uniform(-math.pi, math.pi)))
+                if math.hypot(target[0] - before[0], target[1] - before[1]) >= min_jump_m:
+                    break
+            else:  # pragma: no cover - a court this small has no room to jump
+                raise ValueError(f"no kidnap target {min_jump_m} m away on court {court.name!r}")
+            self.segments.append(RandomWalkTrajectory(court, speed, yaw_rate, seed * 1000 + k, margin, start=target))
+
+    def pose_at(self, t: float) -> Pose:
+        k = bisect.bisect_right(self.times, t)
+        return self.segments[k].pose_at(t - (self.times[k - 1] if k else 0.0))

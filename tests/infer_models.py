@@ -43,16 +43,16 @@ WIDTH, HEIGHT, CROP_TOP = 640, 480, 200
 class TwinFrames:
     """Radial-scan hits of rendered twin frames, one per pose, made once."""
 
-    def __init__(self, poses: list[tuple[float, float, float]]) -> None:
+    def __init__(self, poses: list[tuple[float, float, float]], court: str = COURT, camera: str = CAMERA) -> None:
         from courtloc.scan.config import PreprocessConfig
         from courtloc.scan.preprocessor import Preprocessor
         from courtloc.sim.render import Renderer
         from courtloc.world.camera import load_camera
         from courtloc.world.court import load_court
 
-        camera = load_camera(CAMERA)
-        assert (camera.width, camera.height) == (WIDTH, HEIGHT)
-        renderer = Renderer(load_court(COURT), camera)
+        camera_model = load_camera(camera)
+        assert (camera_model.width, camera_model.height) == (WIDTH, HEIGHT)
+        renderer = Renderer(load_court(court), camera_model)
         preprocessor = Preprocessor(PreprocessConfig(frame_width=WIDTH, frame_height=HEIGHT))
         self.poses = list(poses)
         self.hits = [preprocessor.process(renderer.render(pose)) for pose in self.poses]
@@ -193,6 +193,16 @@ def request_pose(client, frames: TwinFrames, seq: int, frame_index: int = 0):  #
     client.wait_subscribed("preprocess/edges")  # a put before the stage's route exists reaches nobody
     client.put_raw("preprocess/edges", codec.encode(frames.edges(frame_index, seq)))
     return client.wait_for("infer/pose", lambda p: p.header.seq == seq, timeout=10.0)
+
+
+def first_valid_pose(client, frames: TwinFrames, seq: int, most: int = 8):  # noqa: ANN001, ANN201
+    """Frames `seq`, `seq + 1`, ... until a valid pose, at most `most` (then the last pose, invalid): a fresh
+    stage acquires its pose over a few frames (docs/localizer.md, "Acquisition"). Returns (pose, next seq)."""
+    for k in range(most):
+        pose = request_pose(client, frames, seq + k)
+        if pose.header.valid:
+            break
+    return pose, seq + k + 1
 
 
 def run_model_cli(config: Path, *args: str) -> tuple[int, dict, str]:

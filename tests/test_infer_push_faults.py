@@ -12,7 +12,7 @@ from typing import Any, Iterator
 
 import pytest
 from buskit import BusClient, free_port, start_router, start_stage, write_config
-from infer_models import TwinFrames, relabelled_package, request_pose, run_model_cli, tiny_paper_model
+from infer_models import TwinFrames, first_valid_pose, relabelled_package, run_model_cli, tiny_paper_model
 
 from courtloc.common.messages import Pose
 from courtloc.model_client import ModelClient
@@ -36,7 +36,8 @@ class Bench:
         self.seq = 0
 
     def config(self, name: str, store: Path) -> Path:
-        return write_config(self.tmp / f"{name}.toml", self.port, f'[infer]\nstore = "{store}"\n')
+        # drift_mps: the twin robot stands still while pushes pause the frames for seconds (a robot that waits).
+        return write_config(self.tmp / f"{name}.toml", self.port, f'[infer]\nstore = "{store}"\ndrift_mps = 0.1\n')
 
     def start(self, config: Path):  # noqa: ANN201 - buskit.Proc
         infer = start_stage("infer", config)
@@ -44,8 +45,11 @@ class Bench:
         return infer
 
     def pose(self) -> Pose:
-        self.seq += 1
-        return request_pose(self.client, self.frames, self.seq)
+        """The first valid pose of the next few frames: after a start or a pause of more than a second (a push
+        takes longer) the localizer acquires again, over a few frames (docs/localizer.md, "Acquisition")."""
+        pose, next_seq = first_valid_pose(self.client, self.frames, self.seq + 1)
+        self.seq = next_seq - 1
+        return pose
 
     def model(self, config: Path, *args: str) -> tuple[int, dict[str, Any], str]:
         return run_model_cli(config, *args)

@@ -121,12 +121,25 @@ def test_track_follows_and_resets_after_lost_frames(setup) -> None:
         assert np.allclose(step.result.pose, motion.predict(state, t, loc.config.motion).pose)
         state = step.state
     assert state.lost == 3 and motion.is_lost(state, 0.5, loc.config.motion)
-    # Lost: the court is searched again, and the lost track's pose picks the twin (not the "+x" half).
-    step = loc.track(frame, state, 0.5)
-    assert step.result.mode == "global" and step.result.valid
-    assert _close(step.result.pose, POSE), step.result.pose
-    assert step.state is not None and step.state.lost == 0
-    assert _close(loc.track(frame, None, 0.0).result.pose, mirror(np.array(POSE))), "no track: the half rule"
+    # Lost: the court is searched again (acquisition, acquire.py) with the lost track's pose as the prior: it
+    # picks the twin, and after at most confirm_frames frames of the same answer the track restarts there, valid.
+    valid = []
+    for k in range(loc.config.acquire.confirm_frames):
+        step = loc.track(frame, state, 0.5 + 0.03 * k)
+        state = step.state
+        valid.append(step.result.valid)
+        assert _close(step.result.pose, POSE), step.result.pose
+        if step.result.valid:
+            break
+    assert valid[-1] and not any(valid[:-1]), valid
+    assert isinstance(state, motion.MotionState) and state.lost == 0
+    # No track and no prior: the twins tie, so the answer is never valid (not the "+x" half as it once was).
+    state = None
+    for k in range(2 * loc.config.acquire.confirm_frames):
+        step = loc.track(frame, state, 0.03 * k)
+        state = step.state
+        assert not step.result.valid and step.result.status == "ambiguous"
+        assert any(_close(p, mirror(np.array(POSE))) for p in [step.result.pose, *step.result.alternatives])
 
 
 def test_track_keeps_the_twin_of_the_state(setup) -> None:

@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from courtloc.localizer.odometry_fusion import FusionConfig
 
@@ -21,6 +21,30 @@ Provider = Literal["tensorrt", "cuda", "cpu"]
 def providers_for(config: "InferConfig", input_kind: str) -> list[str]:
     """The provider preference for a model of this input kind (short names, as in the config)."""
     return list(config.accelerator_providers if input_kind in config.accelerate_kinds else config.providers)
+class StartConfig(BaseModel):
+    """Where the robot starts a run: a pose (x, y and optionally the heading, each with its uncertainty)
+    or only the half it starts in. The localizer's acquisition takes it as evidence between hypotheses
+    that the view alone cannot tell apart (docs/localizer.md, "Acquisition")."""
+
+    model_config = ConfigDict(extra="forbid")
+    half: Optional[Literal["+x", "-x"]] = Field(None, description="the half the robot starts in")
+    x: Optional[float] = Field(None, description="start position, court metres")
+    y: Optional[float] = None
+    yaw_deg: Optional[float] = Field(None, description="start heading, degrees CCW from +x (None: unknown)")
+    std_m: float = Field(0.5, gt=0, description="how well the start position is known")
+    yaw_std_deg: float = Field(20.0, gt=0, description="how well the start heading is known")
+
+    @model_validator(mode="after")
+    def _a_pose_or_a_half(self) -> "StartConfig":
+        if (self.x is None) != (self.y is None):
+            raise ValueError("start: give both x and y (or neither)")
+        if self.x is None and self.yaw_deg is not None:
+            raise ValueError("start: yaw_deg needs x and y")
+        if self.x is None and self.half is None:
+            raise ValueError("start: give x and y (a pose) or half (\"+x\" or \"-x\")")
+        if self.x is not None and self.half is not None and (self.x > 0) != (self.half == "+x"):
+            raise ValueError(f"start: x = {self.x} is not in half {self.half!r}")
+        return self
 
 
 class InferConfig(BaseModel):
@@ -65,3 +89,20 @@ class InferConfig(BaseModel):
                                  description="odometry fusion in the tracker (off: shooter_bridge/odometry is ignored)")
     max_open_uploads: int = Field(default=2, ge=1, description="a new push evicts the least recently written beyond this")
     upload_ttl_h: float = Field(default=24.0, gt=0, description="an upload without a new byte for this long is removed")
+    start: Optional[StartConfig] = Field(default=None, description="where the robot starts a run (None: the "
+                                         "localizer waits for a pose the view decides, or `courtloc pose set`)")
+    drift_mps: Optional[float] = Field(default=None, gt=0, description="how fast the robot may move while it has no "
+                                       "valid pose (the spread of a lost or saved pose grows at this rate; default: "
+                                       "the package's acquire.motion_sigma_mps). A robot that stops without a pose "
+                                       "can set it low, and then resumes on the right side after any outage")
+    resume_file: Optional[Path] = Field(default=None, description="the last tracked pose, saved twice a second so a "
+                                        "restarted stage resumes from it (default: beside the store)")
+    resume_max_age_s: float = Field(default=60.0, ge=0, description="a saved pose older than this is a previous run's "
+                                    "(the configured start applies instead)")
+    court: Optional[str] = Field(default=None, description="the deployment's court (set from the top-level `court`)")
+    camera: Optional[str] = Field(default=None, description="the deployment's camera (set from the top-level "
+                                  "`camera`, default the court's own)")
+
+    @property
+    def resume_path(self) -> Path:
+        return self.resume_file or self.store.parent / f"{self.store.name}.last-pose.json"

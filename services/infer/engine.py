@@ -17,7 +17,7 @@ from courtloc.services.infer.config import InferConfig
 from courtloc.services.infer.golden import package_golden
 from courtloc.services.infer.sandbox import validate_in_child
 from courtloc.services.infer.store import ModelRef, StoredModel
-from courtloc.services.infer.validation import ModelRefused, predictor_for, read_model_file
+from courtloc.services.infer.validation import ModelRefused, deployment_mismatch, predictor_for, read_model_file
 from courtloc.world.court import Court
 
 log = logging.getLogger(__name__)
@@ -49,7 +49,14 @@ def load_model(stored: StoredModel, config: InferConfig, validate: bool = False,
     if validate:
         validate_in_child(stored.folder, config, pushed)
     model_file = read_model_file(stored.model_path)  # the one parse of the graph in this process
-    loaded = LoadedModel(stored.ref, predictor_for(model_file, config), model_file.manifest.input.kind)
+    mismatch = deployment_mismatch(model_file.manifest, config)
+    if mismatch:
+        raise ModelRefused(mismatch)
+    predictor = predictor_for(model_file, config)
+    localizer = getattr(predictor, "localizer", None)
+    if config.drift_mps is not None and localizer is not None:
+        localizer.config.acquire = localizer.config.acquire.model_copy(update={"motion_sigma_mps": config.drift_mps})
+    loaded = LoadedModel(stored.ref, predictor, model_file.manifest.input.kind)
     if validate:
         _warm_up(loaded, stored.folder)
     return loaded

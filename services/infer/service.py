@@ -3,30 +3,56 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 from pydantic import BaseModel
 
 from courtloc.common.bus import ZenohConfig
-from courtloc.common.control import ModelReply
+from courtloc.common.control import ModelReply, PoseReply, SetPose
 from courtloc.common.inbox import Delivery
 from courtloc.common.messages import Edges, Odometry, Pose
 from courtloc.common.payloads import edges_hits
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Control, Topic
+from courtloc.localizer.acquire import Prior
+from courtloc.localizer.manifest import ManifestError, read_manifest
 from courtloc.localizer.odometry_fusion import OdometryFusion, pose_covariance
+from courtloc.localizer.package import bundled_package
 from courtloc.localizer.predictor import GeometricPredictor
 from courtloc.localizer.tracking import Tracker
-from courtloc.models import bundled_package
-from courtloc.services.infer.config import InferConfig
+from courtloc.models import bundled_package as bundled_default
+from courtloc.services.infer.config import InferConfig, StartConfig
 from courtloc.services.infer.engine import LoadedModel, load_model
 from courtloc.services.infer.model_control import ModelControl
+from courtloc.services.infer.resume import ResumeFile
 from courtloc.services.infer.shadow import ShadowRunner
 from courtloc.services.infer.store import ModelRef, ModelStore, StoredModel
 from courtloc.services.infer.uploads import Uploads
-from courtloc.services.infer.validation import ModelRefused, is_on_court
+from courtloc.services.infer.validation import ModelRefused, deployment_mismatch, is_on_court
 
 DEFAULT_MODEL_NAME = "default"
+
+
+def bundled_for(config: InferConfig) -> Path:
+    """The shipped package for the deployment's court and camera (ModelRefused naming what ships otherwise)."""
+    if config.court is None:
+        return bundled_default()
+    try:
+        return bundled_package(config.court, config.camera or config.court)
+    except ManifestError as exc:
+        raise ModelRefused(str(exc)) from None
+
+
+def start_prior(start: StartConfig | None) -> Prior | None:
+    """The configured start as the localizer's evidence for a fresh run."""
+    if start is None:
+        return None
+    if start.x is None or start.y is None:
+        return Prior(source="start", half=start.half)
+    yaw = 0.0 if start.yaw_deg is None else math.radians(start.yaw_deg)
+    return Prior(source="start", pose=np.array([start.x, start.y, yaw]), std_m=start.std_m, half=start.half,
+                 yaw_std_rad=None if start.yaw_deg is None else math.radians(start.yaw_std_deg))
 
 
 class InferService(Service):
@@ -39,7 +65,8 @@ class InferService(Service):
         self.store = ModelStore(config.store)
         self.active: LoadedModel | None = None
         self.shadow: ShadowRunner | None = None
-        self.tracker = Tracker()
+        self.tracker = Tracker(start=start_prior(config.start))
+        self.resume = ResumeFile(config.resume_path, robot_id)
         # Odometry fusion (localizer/odometry_fusion.py): None unless configured, then poses are as before.
         self.fusion = OdometryFusion(config.fusion) if config.fusion.enabled else None
         self.swaps = 0
@@ -49,15 +76,26 @@ class InferService(Service):
     # ---- start-up ----------------------------------------------------------------------
     def on_start(self) -> None:
         self.active = self._load_active()
-        self.log.info("serving model %s", self.active.ref)
+        self.log.info("serving model %s (court %s, camera %s)", self.active.ref, self.active.manifest.court,
+                      self.active.manifest.camera)
+        saved = self.resume.load(self.active.manifest.court, self.config.resume_max_age_s)
+        if saved is not None:  # a restart mid-run: the saved pose, not the configured start, is the evidence
+            self.tracker.set_prior(saved.prior(), wall_ns=saved.wall_ns)
+            self.log.info("resuming from the pose saved %.1f s ago: (%.2f, %.2f)", saved.age_s(), saved.x, saved.y)
 
     def _load_active(self) -> LoadedModel:
-        """The store's active model; a fresh store gets the bundled default as version 1."""
+        """The store's active model; a fresh store gets the bundled package of the deployment's court and
+        camera. An active model for another court or camera is refused (with the reason) and the bundled
+        package of this deployment serves instead."""
         if self.store.record().active is None:
-            stored = self.store.add_folder(bundled_package(), DEFAULT_MODEL_NAME)
-            self.store.set_active(stored.ref)
+            self._activate_bundled()
         stored = self.store.active()
         assert stored is not None
+        mismatch = self._mismatch(stored)
+        if mismatch:
+            self.record_error("model", f"active model {stored.ref} refused: {mismatch}; serving the bundled package "
+                              f"for this deployment")
+            stored = self._activate_bundled()
         try:
             return load_model(stored, self.config)
         except ModelRefused as exc:
@@ -65,6 +103,27 @@ class InferService(Service):
             self.record_error("model", f"active model {stored.ref} cannot load ({exc}); rolling back")
             target = self.store.rollback()
             return load_model(self.store.get(target), self.config)
+
+    def _mismatch(self, stored: StoredModel) -> str:
+        try:
+            return deployment_mismatch(read_manifest(stored.model_path), self.config)
+        except Exception:  # unreadable: load_model below says why
+            return ""
+
+    def _activate_bundled(self) -> StoredModel:
+        """The bundled package for this deployment, as a store version (the existing copy when there is one)."""
+        source = bundled_for(self.config)
+        weights = read_manifest(source / "model.onnx").weights_sha256
+        for stored in self.store.models():
+            try:
+                if stored.ref.name == DEFAULT_MODEL_NAME and read_manifest(stored.model_path).weights_sha256 == weights:
+                    self.store.set_active(stored.ref)
+                    return stored
+            except Exception:  # an unreadable version is not the copy we look for
+                continue
+        stored = self.store.add_folder(source, DEFAULT_MODEL_NAME)
+        self.store.set_active(stored.ref)
+        return stored
 
     # ---- the hot path --------------------------------------------------------------------
     def on_message(self, topic: Topic, message: Edges | Odometry, delivery: Delivery) -> None:
@@ -89,6 +148,8 @@ class InferService(Service):
             return
         pose = self.make_pose(model, message, hits, fresh=fresh, tracker=self.tracker)
         self.publish("infer/pose", pose)
+        if pose.header.valid:
+            self.resume.offer(self.tracker.tracked_prior(), model.manifest.court, pose.header.capture_wall_ns)
         shadow = self.shadow
         if shadow is not None:
             shadow.offer(message, hits, pose)
@@ -111,7 +172,8 @@ class InferService(Service):
         else:
             # Capture times on the camera's monotonic clock: the filter predicts over the real interval.
             pred = tracker.step(model.predictor, hits, edges.width, edges.height,
-                                t=edges.header.capture_mono_ns * 1e-9, fusion=fusion)
+                                t=edges.header.capture_mono_ns * 1e-9, fusion=fusion,
+                                capture_wall_ns=edges.header.capture_wall_ns)
             fusion_reason = tracker.odometry_reason
             covariance = pose_covariance(tracker.motion)
             x, y, yaw, quality = float(pred.x), float(pred.y), pred.yaw, float(pred.quality)
@@ -121,7 +183,7 @@ class InferService(Service):
             elif not is_on_court(model.court, x, y, self.config.on_court_margin_m):
                 reason = "off_court"
             elif not pred.valid:
-                reason = fusion_reason or ("no_hits" if len(hits) == 0 else "low_quality")
+                reason = fusion_reason or pred.reason or ("no_hits" if len(hits) == 0 else "low_quality")
             ok = not reason
         if ok and not fresh:
             reason, ok = "stale_input", False
@@ -134,6 +196,8 @@ class InferService(Service):
 
     # ---- model control (the runtime's control thread) -------------------------------------------
     def on_control(self, control: Control, request: BaseModel) -> BaseModel:
+        if control.name == "set_pose":
+            return self.set_pose(request.body)
         return self._without_internals(self._control.handle(request))
 
     def _without_internals(self, reply: ModelReply) -> ModelReply:
@@ -143,6 +207,17 @@ class InferService(Service):
         for root in {str(self.store.root.resolve()), str(self.store.root)}:
             reason = reason.replace(root, "<store>")
         return reply if reason == reply.reason else reply.model_copy(update={"reason": reason})
+
+    def set_pose(self, request: SetPose) -> PoseReply:
+        """The pit's pose: the next frame acquires with it as the evidence (control thread; the worker applies it)."""
+        model = self.active
+        if model is not None and not is_on_court(model.court, request.x, request.y, 0.0):
+            return PoseReply(ok=False, reason=f"({request.x:.2f}, {request.y:.2f}) is not on court {model.manifest.court!r}")
+        self.tracker.request_prior(Prior(source="pit", pose=np.array([request.x, request.y, request.yaw]),
+                                         std_m=request.std_m, yaw_std_rad=request.yaw_std_rad))
+        self.log.info("pose set by the pit: (%.2f, %.2f, %.1f deg) +- %.2f m", request.x, request.y,
+                      math.degrees(request.yaw), request.std_m)
+        return PoseReply(ok=True, reason="pose set; the localizer confirms it against the view")
 
     # ModelHost, for ModelControl
     def validate(self, stored: StoredModel, pushed: bool = False) -> LoadedModel:
@@ -163,7 +238,8 @@ class InferService(Service):
             old.stop()
         if model is not None:
             self.shadow = ShadowRunner(model, lambda pose: self.publish("infer/shadow_pose", pose),
-                                       lambda m, edges, hits, tracker: self.make_pose(m, edges, hits, True, tracker))
+                                       lambda m, edges, hits, tracker: self.make_pose(m, edges, hits, True, tracker),
+                                       tracker=self.tracker.handover())
 
     def active_ref(self) -> ModelRef | None:
         return self.active.ref if self.active is not None else None

@@ -18,7 +18,8 @@ from courtloc.world.angles import wrap_angle
 
 
 class ShadowRunner:
-    def __init__(self, model, publish: Callable[[Pose], None], make_pose) -> None:  # noqa: ANN001
+    def __init__(self, model, publish: Callable[[Pose], None], make_pose,  # noqa: ANN001
+                 tracker: Tracker | None = None) -> None:
         self.model = model
         self._publish = publish
         self._make_pose = make_pose
@@ -27,7 +28,7 @@ class ShadowRunner:
         self._diffs: deque[float] = deque(maxlen=1000)
         self._yaw_diffs: deque[float] = deque(maxlen=1000)
         self._lock = threading.Lock()
-        self._tracker = Tracker()  # the candidate tracks on its own poses
+        self._tracker = tracker or Tracker()  # the candidate tracks on its own poses
         self._thread = threading.Thread(target=self._run, name="infer-shadow", daemon=True)
         self._thread.start()
 

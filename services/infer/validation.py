@@ -15,7 +15,7 @@ from onnx.helper import tensor_dtype_to_np_dtype
 
 from courtloc.common.signing import ModelSignatureError, signature_path, verify_model
 from courtloc.localizer.golden import run_golden
-from courtloc.localizer.manifest import MODEL_FILE, ManifestError
+from courtloc.localizer.manifest import MODEL_FILE, Manifest, ManifestError
 from courtloc.localizer.model_file import ModelFile
 from courtloc.localizer.predictor import Predictor, load_predictor
 from courtloc.services.infer.config import InferConfig, providers_for
@@ -50,6 +50,14 @@ def read_model_file(path: Path) -> ModelFile:
         raise ModelRefused(f"manifest: {exc}") from None
 
 
+def deployment_mismatch(manifest: Manifest, config: InferConfig) -> str:
+    """Why a model does not fit this deployment's court or camera ('' when it does, or nothing is set)."""
+    for what, want, have in (("court", config.court, manifest.court), ("camera", config.camera, manifest.camera)):
+        if want is not None and have != want:
+            return f"model is for {what} {have!r}, this deployment's {what} is {want!r}"
+    return ""
+
+
 def predictor_for(model_file: ModelFile, config: InferConfig) -> Predictor:
     try:
         return load_predictor(model_file, providers=available_providers(providers_for(config, model_file.manifest.input.kind)),
@@ -62,6 +70,9 @@ def validate_candidate(folder: Path, config: InferConfig, pushed: bool) -> str:
     """Every check on the model in `folder` (run in the validation child); ModelRefused with the reason,
     else a one-line summary of its golden numbers."""
     model_file = read_model_file(folder / MODEL_FILE)
+    mismatch = deployment_mismatch(model_file.manifest, config)
+    if mismatch:
+        raise ModelRefused(mismatch)
     if pushed:
         _check_signature_file(folder, config)
     check_graph_signature(model_file)

@@ -1,0 +1,338 @@
+"""twin: pose error, validity and recovery of the real chain on the digital twin, per scenario
+
+For each scenario (courtloc/sim/scenarios.py) a router and the four stages run as separate OS
+processes on loopback, supervised exactly as `courtloc up` runs them (courtloc/launcher.py), with the
+camera's sim source playing the scenario. A bus client records every `infer/pose` and every
+`camera/ground_truth`; the numbers (courtloc/bench_twin_metrics.py) compare each pose with the truth of
+the same frame. The camera starts once the other stages are alive, so sim time 0 is a chain ready to
+take frames; a run lasts `--seconds` of sim time (frames), however slowly the machine renders them.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import os
+import queue
+import socket
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from courtloc.bench_twin_metrics import Event, PoseSample, TruthSample, twin_metrics
+from courtloc.common import codec
+from courtloc.common.messages import GroundTruth, Pose
+from courtloc.common.services_table import SERVICES, TOPICS
+from courtloc.launcher import Supervisor, write_effective_config
+from courtloc.services.deployment import DeploymentConfig, load_deployment
+from courtloc.sim.scenarios import SCENARIOS, scenario
+from courtloc.watch import BusWatcher
+
+log = logging.getLogger("courtloc.bench_twin")
+STAGES_BEFORE_CAMERA = ("preprocess", "infer", "shooter_bridge")
+
+
+class BenchError(RuntimeError):
+    """A run that cannot be measured (a stage that never came up); the message says why."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--court", default="seed-gazebo", help="court name (sim/courts) or JSON path")
+    parser.add_argument("--camera", default=None, help="camera name or JSON path (default: the court's own)")
+    parser.add_argument("--scenario", default=",".join(SCENARIOS),
+                        help=f"comma-separated scenarios (default all: {','.join(SCENARIOS)})")
+    parser.add_argument("--seconds", type=float, default=30.0, help="sim seconds per scenario (frames / fps)")
+    parser.add_argument("--fps", type=float, default=30.0, help="camera rate")
+    parser.add_argument("--seed", type=int, default=1, help="trajectory and rendering seed")
+    parser.add_argument("--json", type=Path, default=None, help="write the report here")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="deployment TOML whose stage settings to use (its bus, router, court and camera "
+                             "source are replaced by the bench's)")
+    parser.add_argument("--store", type=Path, default=None,
+                        help="infer model store to serve from (default: a fresh one, i.e. the bundled model)")
+    parser.add_argument("--tell-start", choices=("pose", "half", "none"), default="pose",
+                        help="what the infer stage is told of the scenario's start ([infer] start): its pose (0.5 m, "
+                             "20 deg), only its half, or nothing (default pose: what a team configures)")
+    parser.add_argument("--infer", action="append", default=[], metavar="FIELD=VALUE",
+                        help="set an [infer] field for every scenario (VALUE is JSON, or a plain string)")
+    parser.add_argument("--logs", type=Path, default=None, help="keep the stages' logs here (default: discarded)")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        names = [n.strip() for n in args.scenario.split(",") if n.strip()]
+        scenarios = [scenario(n, args.court, args.seconds, args.seed) for n in names]
+        if not scenarios:
+            raise ValueError("no scenario given")
+        if args.seconds <= 0 or args.fps <= 0:
+            raise ValueError("--seconds and --fps must be positive")
+        infer_fields = _parse_fields(args.infer)
+        report: dict[str, Any] = {}
+        for sc in scenarios:
+            report[sc.name] = run_scenario(sc, args, infer_fields)
+            _print_row(sc.name, report[sc.name])
+    except (BenchError, ValueError, OSError) as exc:
+        if args.verbose:
+            raise
+        print(f"courtloc bench twin: {exc}", file=sys.stderr)
+        return 1
+    report["run"] = {"court": args.court, "camera": args.camera, "seconds": args.seconds, "fps": args.fps,
+                     "seed": args.seed, "tell_start": args.tell_start, "scenarios": names, "load_avg": list(os.getloadavg()),
+                     "cpus": os.cpu_count(), "command": " ".join(["courtloc", *sys.argv[1:]])}
+    text = json.dumps(report, indent=1)
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(text + "\n")
+    else:
+        print(text)
+    return 0
+
+
+def _parse_fields(items: list[str]) -> dict[str, Any]:
+    fields: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--infer {item!r}: expected FIELD=VALUE")
+        try:
+            fields[key] = json.loads(value)
+        except json.JSONDecodeError:
+            fields[key] = value
+    return fields
+
+
+def _fmt(value: Any, scale: float = 1.0, digits: int = 3) -> str:
+    return "-" if value is None else f"{value * scale:.{digits}f}"
+
+
+def _print_row(name: str, r: dict[str, Any]) -> None:
+    print(f"{name:14s} n {r['n']:5d}  err mean {_fmt(r['mean_err_m'])} med {_fmt(r['median_err_m'])} "
+          f"p95 {_fmt(r['p95_err_m'])} m  valid {_fmt(r['valid_fraction'], 100, 1)}% "
+          f"(valid mean {_fmt(r['valid_mean_err_m'])} p95 {_fmt(r['valid_p95_err_m'])} m)  "
+          f"valid_wrong {r['valid_wrong']}  recovery mean {_fmt(r['recovery_s_mean'], digits=2)} "
+          f"max {_fmt(r['recovery_s_max'], digits=2)} s ({r['events_unrecovered']}/{r['events']} unrecovered)  "
+          f"camera {_fmt(r.get('camera_fps'), digits=1)} fps",
+          file=sys.stderr, flush=True)
+
+
+# ---- one scenario -----------------------------------------------------------------------------------
+def deployment_for(sc, args: argparse.Namespace, port: int, store: Path, infer_fields: dict[str, Any]):  # noqa: ANN001, ANN201
+    """The base deployment's stage settings with the bench's bus, court and scenario camera."""
+
+    base = load_deployment(args.config).model_dump(mode="json", exclude_unset=True)
+    endpoint = f"tcp/127.0.0.1:{port}"
+    camera = args.camera or base.get("camera_model")  # the bench's, else the file's, else the court's own
+    sim = sc.sim.model_copy(update={"camera": camera})
+    if camera is not None:
+        base["camera_model"] = camera
+    base.update(
+        court=sc.sim.court,
+        zenoh={"mode": "client", "connect": [endpoint]},
+        router={"listen": [endpoint]},
+        launcher={**base.get("launcher", {}), "services": list(SERVICES), "run_router": True},
+        camera={**base.get("camera", {}), "source": "sim", "fps": args.fps, "sim": sim.model_dump(mode="json")},
+        infer={**base.get("infer", {}), "store": str(store), "start": start_config(sc, args.tell_start),
+               **infer_fields},
+    )
+    # What the deployment derives from its court and camera is derived again from the bench's.
+    for key in ("court", "camera"):
+        base["infer"].pop(key, None)
+    shooter = base.get("shooter_bridge", {})
+    if "target" in shooter:  # the shooter aims at the bench's court, not the file's
+        shooter["target"].pop("court", None)
+    return DeploymentConfig.model_validate(base)
+
+
+def start_config(sc, tell: str) -> dict[str, Any] | None:  # noqa: ANN001
+    """`[infer] start` for the scenario: the start pose as a team would configure it, its half, or nothing."""
+    x, y, yaw = sc.start_pose
+    if tell == "pose":
+        return {"x": x, "y": y, "yaw_deg": math.degrees(yaw)}
+    if tell == "half":
+        return {"half": "+x" if x > 0 else "-x"}
+    return None
+
+
+@dataclass
+class _Record:
+    truths: list = field(default_factory=list)
+    poses: list = field(default_factory=list)
+    last_seq: int = -1
+    undecodable: int = 0
+
+
+def _recorder_class():  # noqa: ANN202 - the class needs zenoh, imported only when a bench runs
+
+    class TwinRecorder(BusWatcher):
+        """The watcher (liveliness, health) plus every pose and truth, decoded on its own thread."""
+
+        def __init__(self, config) -> None:  # noqa: ANN001
+            super().__init__(config)
+            self.record = _Record()
+            self.subscribed = threading.Event()
+            self._samples: queue.Queue = queue.Queue()
+            self._progress = threading.Condition()
+            self._decoder = threading.Thread(target=self._decode, name="twin-recorder", daemon=True)
+
+        def extra_subscribers(self, zsession):  # noqa: ANN001, ANN201
+            robot = self.config.robot_id
+            subs = [zsession.declare_subscriber(TOPICS[path].key(robot), self._keep(path))
+                    for path in ("camera/ground_truth", "infer/pose")]
+            self._decoder.start()
+            self.subscribed.set()
+            return subs
+
+        def _keep(self, path: str):  # noqa: ANN202 - zenoh callback: hand the payload over, nothing else
+            def on_sample(sample) -> None:  # noqa: ANN001
+                self._samples.put((path, bytes(sample.payload)))
+            return on_sample
+
+        def _decode(self) -> None:
+            # Until stopped, then whatever is still queued: the last frames count too.
+            while not (self._stop.is_set() and self._samples.empty()):
+                try:
+                    path, payload = self._samples.get(timeout=0.5)
+                except queue.Empty:
+                    continue
+                try:
+                    message = codec.decode(payload, TOPICS[path].message)
+                except codec.DecodeError:
+                    self.record.undecodable += 1
+                    continue
+                header = message.header
+                if isinstance(message, GroundTruth):
+                    sample = TruthSample(header.seq, header.capture_mono_ns, message.x, message.y, message.yaw)
+                    with self._progress:
+                        self.record.truths.append(sample)
+                        self.record.last_seq = max(self.record.last_seq, header.seq)
+                        self._progress.notify_all()
+                elif isinstance(message, Pose):
+                    stamp = next((s for s in reversed(header.stamps) if s.stage == "infer"), header.stamps[-1])
+                    self.record.poses.append(PoseSample(header.capture_mono_ns, stamp.mono_ns, message.x, message.y,
+                                                        message.yaw, header.valid, message.reason))
+
+        def wait_seq(self, seq: int, timeout: float) -> bool:
+            with self._progress:
+                return self._progress.wait_for(lambda: self.record.last_seq >= seq, timeout)
+
+        def _on_liveliness(self, sample) -> None:  # noqa: ANN001
+            super()._on_liveliness(sample)
+            with self._progress:
+                self._progress.notify_all()
+
+        def wait_alive(self, names: tuple[str, ...], timeout: float) -> bool:
+            def all_alive() -> bool:
+                with self._lock:
+                    return set(names) <= self.state.alive
+            with self._progress:
+                return self._progress.wait_for(all_alive, timeout)
+
+        def close(self) -> None:
+            super().close()
+            if self._decoder.is_alive():
+                self._decoder.join(timeout=5.0)
+
+    return TwinRecorder
+
+
+def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any]) -> dict[str, Any]:  # noqa: ANN001
+
+    with tempfile.TemporaryDirectory(prefix="courtloc-twin-") as tmp:
+        folder = Path(tmp)
+        log_dir = args.logs / sc.name if args.logs else folder / "logs"
+        log_dir.mkdir(parents=True, exist_ok=True)
+        config = deployment_for(sc, args, _free_port(), args.store or folder / "store", infer_fields)
+        supervisor = Supervisor(config, write_effective_config(config, folder), log_dir)
+        recorder = _recorder_class()(config)
+        stop = threading.Event()
+        children = {c.name: c for c in supervisor.children}
+        frames = int(math.ceil(args.seconds * args.fps))
+        kill_seq = None if sc.infer_kill_at_s is None else int(math.ceil(sc.infer_kill_at_s * args.fps))
+        kill_ns: int | None = None
+        try:
+            for child in supervisor.children:
+                if child.name == "camera":
+                    continue
+                child.start(log_dir)
+                if not child.ready.wait(15.0):
+                    raise BenchError(f"{child.name} not ready after 15 s (log: {child.log_path})")
+            recorder.start(stop)
+            if not recorder.subscribed.wait(30.0) or not recorder.wait_alive(STAGES_BEFORE_CAMERA, 90.0):
+                with recorder._lock:  # noqa: SLF001 - the watcher's own lock guards its state
+                    missing = set(STAGES_BEFORE_CAMERA) - recorder.state.alive
+                raise BenchError(f"scenario {sc.name}: stage(s) {sorted(missing)} not alive after 90 s "
+                                 f"(logs: {log_dir}; keep them with --logs)")
+            children["camera"].start(log_dir)
+            deadline = time.monotonic() + 60.0 + 6.0 * args.seconds
+            while recorder.record.last_seq < frames - 1:
+                if time.monotonic() > deadline:
+                    log.warning("scenario %s: only %d of %d frames before the deadline", sc.name,
+                                recorder.record.last_seq + 1, frames)
+                    break
+                target = frames - 1 if kill_ns is not None or kill_seq is None else kill_seq
+                if recorder.wait_seq(target, 0.25) and kill_seq is not None and kill_ns is None \
+                        and recorder.record.last_seq >= kill_seq:
+                    kill_ns = time.monotonic_ns()
+                    children["infer"].process.kill()  # SIGKILL: no clean shutdown, as in a crash
+                    log.info("scenario %s: killed infer at frame %d", sc.name, recorder.record.last_seq)
+                supervisor.check()
+            end_ns = time.monotonic_ns()
+        finally:
+            supervisor.stop_all()
+            stop.set()
+            recorder.close()
+        summary = recorder.summary(supervisor.restarts(), 0.0)
+    truths = [t for t in recorder.record.truths if t.capture_ns <= end_ns]
+    poses = [p for p in recorder.record.poses if p.capture_ns <= end_ns]
+    events = scenario_events(sc, truths, poses, args.fps, kill_ns)
+    result = twin_metrics(poses, truths, events, end_ns)
+    first = min((t.capture_ns for t in truths), default=0)
+    last = max((t.capture_ns for t in truths), default=0)
+    for row in result["recoveries"]:
+        row["t_s"] = round((row.pop("start_ns") - first) / 1e9, 3)
+    # Sim time is frames / fps: a camera that cannot render at fps plays the robot in slow motion.
+    camera_fps = (len(truths) - 1) / ((last - first) / 1e9) if last > first else None
+    result.update(description=sc.description, frames=len(truths), camera_fps=camera_fps,
+                  restarts=summary["restarts_by_process"],
+                  stale_or_dropped={name: {"dropped": s["dropped"], "stale": s["stale"]}
+                                    for name, s in summary["stages"].items()})
+    return result
+
+
+def scenario_events(sc, truths: list, poses: list, fps: float, kill_ns: int | None) -> list:  # noqa: ANN001
+    """Where each recovery window starts: the first pose of the run, the first frame after each kidnap and
+    after each outage, and the first pose of the restarted infer process."""
+
+    events = []
+    if poses:
+        events.append(Event("start", min(p.capture_ns for p in poses)))
+    ordered = sorted(truths, key=lambda t: t.seq)
+
+    def first_frame_from(t_s: float) -> int | None:
+        seq = int(math.ceil(t_s * fps - 1e-9))
+        return next((t.capture_ns for t in ordered if t.seq >= seq), None)
+
+    for t_s in sc.sim.kidnaps_s:
+        start = first_frame_from(t_s)
+        if start is not None:
+            events.append(Event("kidnap", start))
+    for _, end_s in sc.sim.outages_s:
+        start = first_frame_from(end_s)
+        if start is not None:
+            events.append(Event("outage", start))
+    if kill_ns is not None:
+        after = [p.capture_ns for p in poses if p.published_ns > kill_ns]
+        if after:
+            events.append(Event("infer_restart", min(after)))
+    return events
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])

@@ -1,0 +1,124 @@
+"""The numbers of `courtloc bench twin`, from what was seen on the bus (pure: no bus, no processes).
+
+Every pose is matched to the camera's ground truth of the same frame by the header's capture stamp
+(the camera stamps the frame and its truth with one header, and every stage forwards that header).
+
+- n, mean/median/p95_err_m, yaw_median_deg: over ALL matched poses, valid or not (what a consumer that
+  ignores the flag would get); the same with the prefix `valid_` over the valid ones only.
+- valid_fraction: valid poses / matched poses. valid_wrong: valid poses more than `wrong_m` off.
+- recovery: for each event (the start of the run, a kidnap, the end of an outage, a restarted infer
+  process) the time from the capture of the first usable frame after it to the publication of the first
+  valid pose captured at or after it. An event not recovered before the next event (or the end of the
+  run) counts with the time it had, as a lower bound, and is counted in `events_unrecovered`. Whether that
+  first valid pose was wrong is kept per event and counted in `recovery_wrong`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from courtloc.lab.metrics import WRONG_M, wrap_angle  # one "valid and wrong" threshold for eval and bench
+
+
+@dataclass(frozen=True)
+class TruthSample:
+    seq: int
+    capture_ns: int
+    x: float
+    y: float
+    yaw: float
+
+
+@dataclass(frozen=True)
+class PoseSample:
+    capture_ns: int
+    published_ns: int
+    x: float
+    y: float
+    yaw: float | None
+    valid: bool
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class Event:
+    kind: str  # "start", "kidnap", "outage", "infer_restart"
+    start_ns: int  # capture time of the first usable frame after it
+
+
+def _stats(err: np.ndarray, yaw_err: np.ndarray, prefix: str = "") -> dict[str, float | None]:
+    if not err.size:
+        return {f"{prefix}mean_err_m": None, f"{prefix}median_err_m": None, f"{prefix}p95_err_m": None,
+                f"{prefix}yaw_median_deg": None}
+    return {
+        f"{prefix}mean_err_m": float(err.mean()),
+        f"{prefix}median_err_m": float(np.median(err)),
+        f"{prefix}p95_err_m": float(np.percentile(err, 95)),
+        f"{prefix}yaw_median_deg": float(np.degrees(np.median(np.abs(yaw_err)))) if yaw_err.size else None,
+    }
+
+
+def _recoveries(events: list[Event], matched: list[tuple[PoseSample, float]], end_ns: int,
+                wrong_m: float) -> list[dict[str, Any]]:
+    ordered = sorted(events, key=lambda e: e.start_ns)
+    valid = sorted(((p, e) for p, e in matched if p.valid), key=lambda pe: pe[0].capture_ns)
+    starts = [e.start_ns for e in ordered]
+    out = []
+    for i, event in enumerate(ordered):
+        horizon = starts[i + 1] if i + 1 < len(ordered) else end_ns
+        first = next(((p, err) for p, err in valid if event.start_ns <= p.capture_ns < horizon), None)
+        row: dict[str, Any] = {"kind": event.kind, "start_ns": event.start_ns}
+        if first is None:
+            row.update(recovered=False, recovery_s=max(horizon - event.start_ns, 0) / 1e9,
+                       first_valid_err_m=None, first_valid_wrong=None)
+        else:
+            pose, err = first
+            row.update(recovered=True, recovery_s=max(pose.published_ns - event.start_ns, 0) / 1e9,
+                       first_valid_err_m=err, first_valid_wrong=bool(err > wrong_m))
+        out.append(row)
+    return out
+
+
+def twin_metrics(poses: list[PoseSample], truths: list[TruthSample], events: list[Event], end_ns: int,
+                 wrong_m: float = WRONG_M) -> dict[str, Any]:
+    """The scenario's report (see the module docstring); `end_ns` ends the last recovery window."""
+    by_stamp = {t.capture_ns: t for t in truths}
+    matched: list[tuple[PoseSample, float]] = []
+    yaw_errs: list[float | None] = []
+    for pose in poses:
+        truth = by_stamp.get(pose.capture_ns)
+        if truth is None:
+            continue
+        matched.append((pose, math.hypot(pose.x - truth.x, pose.y - truth.y)))
+        yaw_errs.append(None if pose.yaw is None else float(wrap_angle(pose.yaw - truth.yaw)))
+    err = np.array([e for _, e in matched], dtype=np.float64)
+    valid = np.array([p.valid for p, _ in matched], dtype=bool)
+    has_yaw = np.array([y is not None for y in yaw_errs], dtype=bool)
+    yaw = np.array([0.0 if y is None else y for y in yaw_errs], dtype=np.float64)
+    recoveries = _recoveries(events, matched, end_ns, wrong_m)
+    times = np.array([r["recovery_s"] for r in recoveries], dtype=np.float64)
+    reasons: dict[str, int] = {}
+    for pose, _ in matched:
+        if not pose.valid:
+            reasons[pose.reason or "unknown"] = reasons.get(pose.reason or "unknown", 0) + 1
+    return {
+        "n": int(err.size),
+        **_stats(err, yaw[has_yaw]),
+        "valid_n": int(valid.sum()),
+        "valid_fraction": float(valid.mean()) if err.size else None,
+        **_stats(err[valid], yaw[valid & has_yaw], prefix="valid_"),
+        "valid_wrong": int(np.count_nonzero(valid & (err > wrong_m))),
+        "valid_wrong_max_err_m": float(err[valid & (err > wrong_m)].max()) if np.any(valid & (err > wrong_m)) else None,
+        "wrong_m": wrong_m,
+        "recovery_s_mean": float(times.mean()) if times.size else None,
+        "recovery_s_max": float(times.max()) if times.size else None,
+        "events": len(recoveries),
+        "events_unrecovered": sum(not r["recovered"] for r in recoveries),
+        "recovery_wrong": sum(bool(r["first_valid_wrong"]) for r in recoveries),
+        "recoveries": recoveries,
+        "invalid_reasons": reasons,
+        "unmatched_poses": len(poses) - len(matched),
+    }

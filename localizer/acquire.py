@@ -1,0 +1,172 @@
+"""Acquisition: from no track (cold start, restart, lost track, kidnap) to a track, never by a guess.
+
+A single frame often fits more than one place on the court equally well: always the point-symmetric
+twin (x, y, yaw) / (-x, -y, yaw + pi) on a point-symmetric court, and sometimes other near-ties (the
+court repeats parallel lines). The rule, one frame at a time while acquiring:
+
+1. Hypotheses. A global search proposes poses; every refined fit that is valid, or trackable (enough
+   inliers, but the view does not pin the position: only parallel lines), and whose robust cost is
+   within `tie_ratio` x the best (+ `tie_abs`) is a hypothesis, and so is each one's mirror twin
+   (refined on its own: on a symmetric court it ties exactly, where the arena differs its cost decides).
+   Each hypothesis is then tracked like a track (motion filter); one whose fits stop fitting
+   (`drop_lost_frames` frames without a usable fit) or cost more than `tie_ratio` x the best
+   hypothesis's dies. Hypotheses that converge merge. No hypothesis left: search again.
+2. Evidence. A prior says where the robot is: the configured start (a pose with a std, or a half),
+   a pose set by the pit, or the last pose of a lost track (with its time: the robot moved since).
+   A pose prior scores each hypothesis by its Mahalanobis distance d^2 (position std grown by
+   `motion_sigma_mps` per second since the prior held, heading likewise); hypotheses with d^2 >
+   `prior_gate_chi2` are not explained by the prior. The prior decides for the best-scoring
+   hypothesis when it lies within `decide_chi2` (3 sigma) and every other one scores worse by at least
+   `decide_log_ratio` in log-likelihood (d^2 / 2). A half prior keeps the hypotheses in that half (|x| >= the centre margin). A lost
+   track's prior that explains none of the hypotheses for `kidnap_frames` frames means the robot was moved (a kidnap, or a track
+   that had snapped to a wrong parallel line): it is dropped, or with `kidnap_sigma_m` > 0 (default 0)
+   it becomes a kidnap prior, the same place that wide with the heading unknown (an assumption: a robot
+   pushed or carried lands within a few metres; on the twin's robocon2025 kidnaps it decided wrong
+   hypotheses, hence off by default). A start or pit prior stays.
+   Without a prior, only a lone hypothesis is decided (never on a symmetric court). An unpinned
+   hypothesis is never decided, and it competes with the others anywhere along its free direction (its
+   covariance counts in d^2): a degenerate view of the truth beside a valid fit of a wrong place keeps
+   both undecided, and usually the wrong one dies of the cost tie.
+3. Confirmation. The decided hypothesis must be the one answer for `confirm_frames` frames in a row
+   with a valid fit (`confirm_frames_tight` when a pose prior known to `tight_prior_m` decided: a wrong
+   basin that close to a known pose is what tracking risks anyway); each of those frames searches the
+   court again, and a frame that an invalid (unpinnable, e.g. only parallel lines) pose explains better
+   than every valid one confirms nothing. Then the track starts there and the frame is valid. Until then every frame is
+   invalid with reason `ambiguous` (several hypotheses) or `searching` (none yet).
+Pure functions of the state the caller passes in, like motion.py.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from courtloc.localizer import motion
+from courtloc.localizer.config import AcquireConfig, Half
+
+PriorSource = Literal["start", "pit", "track", "kidnap"]
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Where the robot is known to be. `pose` with `std_m` (and `yaw_std_rad`, None: heading unknown),
+    or only `half`. `t`: when it held, on the frames' clock (None: at the first frame that uses it, less
+    `age_s`)."""
+
+    source: PriorSource
+    pose: np.ndarray | None = None
+    std_m: float = 0.5
+    yaw_std_rad: float | None = None
+    half: Half | None = None
+    t: float | None = None
+    age_s: float = 0.0  # how old it already was at the first frame that uses it (t None)
+
+    def at(self, t: float | None) -> "Prior":
+        """The prior with its time set (the first frame that uses it, minus its age) when it had none."""
+        if self.t is not None or t is None:
+            return self
+        return Prior(self.source, self.pose, self.std_m, self.yaw_std_rad, self.half, t - self.age_s)
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """A tracked candidate pose and where and when it was first seen (what a pose prior is compared with)."""
+
+    state: motion.MotionState
+    origin: np.ndarray
+    origin_t: float | None
+    origin_cov: np.ndarray | None = None  # (2, 2) position covariance where first seen (None: a point)
+    pinned: bool = True  # False: its fits do not pin the position (a degenerate view): never decided
+
+    @property
+    def pose(self) -> np.ndarray:
+        return self.state.pose
+
+
+@dataclass(frozen=True)
+class Acquiring:
+    """The tracker's state while it has no track: the prior and the live hypotheses."""
+
+    prior: Prior | None = None
+    hypotheses: tuple[Hypothesis, ...] = ()
+    agreed: int = 0  # frames in a row the same decided hypothesis answered with a valid fit
+    since_search: int = 0  # frames since the last global search
+    decided_pose: np.ndarray | None = field(default=None, compare=False)
+    decided_t: float | None = None  # when the decision being confirmed was first made
+    unexplained: int = 0  # frames in a row the prior explained no hypothesis
+
+
+def _yaw_diff(a: float, b: float) -> float:
+    return abs(math.remainder(a - b, 2 * math.pi))
+
+
+def same_pose(a: np.ndarray, b: np.ndarray, cfg: AcquireConfig) -> bool:
+    return math.hypot(a[0] - b[0], a[1] - b[1]) <= cfg.merge_m and _yaw_diff(a[2], b[2]) <= cfg.merge_rad
+
+
+def prior_distance2(prior: Prior, pose: np.ndarray, t: float | None, cfg: AcquireConfig,
+                    position_cov: np.ndarray | None = None) -> float:
+    """Mahalanobis d^2 of a pose from a pose prior, its spread grown by the time since it held, plus the
+    pose's own position covariance (a hypothesis the view cannot pin down is near the prior anywhere
+    along its free direction)."""
+    assert prior.pose is not None
+    age = 0.0 if t is None or prior.t is None else abs(t - prior.t)
+    sigma = prior.std_m + cfg.motion_sigma_mps * age
+    cov = np.eye(2) * sigma ** 2
+    if position_cov is not None and np.all(np.isfinite(position_cov)):
+        cov = cov + np.clip(position_cov, -1e4, 1e4)
+    delta = np.asarray(pose[:2], np.float64) - prior.pose[:2]
+    d2 = float(delta @ np.linalg.solve(cov, delta))
+    if prior.yaw_std_rad is not None:
+        yaw_sigma = prior.yaw_std_rad + cfg.yaw_sigma_rps * age
+        if yaw_sigma < math.pi:  # beyond half a turn the heading says nothing
+            d2 += _yaw_diff(pose[2], prior.pose[2]) ** 2 / yaw_sigma ** 2
+    return d2
+
+
+def in_half(pose: np.ndarray, half: Half, centre_margin_m: float) -> bool:
+    """In the half and clear of the centre line (near x = 0 position cannot tell the halves apart)."""
+    return bool((1.0 if half == "+x" else -1.0) * pose[0] >= centre_margin_m)
+
+
+@dataclass(frozen=True)
+class Decision:
+    index: int | None  # the decided hypothesis, None: nothing decides
+    explained: bool  # the prior explains at least one hypothesis (False: drop a lost track's prior)
+    tight: bool = False  # decided by a pose prior known to within `tight_prior_m` (needs less confirmation)
+    kidnap: bool = False  # decided by a kidnap prior (needs more)
+
+
+def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None, t: float | None,
+           cfg: AcquireConfig, centre_margin_m: float) -> Decision:
+    """Which hypothesis the evidence picks (see the module's rule 2). A pose prior is compared with each
+    hypothesis where and when it was first seen (its origin): a hypothesis tracked since carries that
+    evidence, so waiting does not wash it out; a half is judged at the current pose (the robot may leave
+    the centre). Sound because every hypothesis's mirror twin is kept beside it with the mirrored origin
+    (GeometricLocalizer._with_twins): without that, a lone survivor near the prior would be decided while
+    its twin, equally near, was missing. `half`: the package's fixed half ('half' symmetry mode), applied
+    on top of the prior. `t` is the decision's time (the tight flag's age)."""
+    poses = [h.pose for h in hypotheses]
+    keep = list(range(len(poses)))
+    if half is not None:
+        keep = [i for i in keep if in_half(poses[i], half, centre_margin_m)]
+    explained = True
+    if prior is not None and prior.half is not None:
+        keep = [i for i in keep if in_half(poses[i], prior.half, centre_margin_m)]
+    if prior is not None and prior.pose is not None and keep:
+        d2 = {i: prior_distance2(prior, hypotheses[i].origin, hypotheses[i].origin_t, cfg, hypotheses[i].origin_cov)
+              for i in keep}
+        inside = [i for i in keep if d2[i] <= cfg.prior_gate_chi2]
+        if not inside:
+            return Decision(None, explained=False)
+        best = min(inside, key=d2.__getitem__)
+        if hypotheses[best].pinned and d2[best] <= cfg.decide_chi2 and all(0.5 * (d2[i] - d2[best]) >= cfg.decide_log_ratio
+                                               for i in keep if i != best):
+            origin_t = hypotheses[best].origin_t
+            age = 0.0 if origin_t is None or prior.t is None else abs(origin_t - prior.t)
+            return Decision(best, explained, tight=prior.std_m + cfg.motion_sigma_mps * age <= cfg.tight_prior_m,
+                            kidnap=prior.source == "kidnap")
+        return Decision(None, explained)
+    return Decision(keep[0] if len(keep) == 1 and hypotheses[keep[0]].pinned else None, explained)

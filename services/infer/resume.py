@@ -1,0 +1,82 @@
+"""The last tracked pose on disk, so a restarted infer stage resumes from where the robot was.
+
+Why: after a restart (a crash, kill -9, an update) the stage has no track, and on a point-symmetric court
+a fresh view cannot tell the robot's pose from its mirror image; the configured start is the evidence of
+a *fresh* run and would pick the wrong twin mid-run. The saved pose is that evidence instead: the
+localizer's acquisition takes it as a prior whose uncertainty grows with its age (acquire.py).
+Written at most twice a second from valid tracked frames (write to a temporary file, then rename: a
+reader never sees half a file; no fsync: losing the last half second on a power cut costs nothing).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from courtloc.localizer.acquire import Prior
+
+log = logging.getLogger(__name__)
+SAVE_PERIOD_NS = 500_000_000
+
+
+class SavedPose(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    robot_id: str
+    court: str
+    x: float
+    y: float
+    yaw: float
+    std_m: float = Field(ge=0)
+    yaw_std_rad: float = Field(ge=0)
+    wall_ns: int = Field(description="capture wall-clock time of the frame the pose is from")
+
+    def age_s(self, now_ns: int | None = None) -> float:
+        return ((now_ns or time.time_ns()) - self.wall_ns) * 1e-9
+
+    def prior(self) -> Prior:
+        return Prior(source="track", pose=np.array([self.x, self.y, self.yaw]), std_m=self.std_m,
+                     yaw_std_rad=self.yaw_std_rad)
+
+
+class ResumeFile:
+    def __init__(self, path: Path, robot_id: str) -> None:
+        self.path = Path(path)
+        self.robot_id = robot_id
+        self._last_ns = 0
+
+    def load(self, court: str, max_age_s: float) -> SavedPose | None:
+        """The saved pose when it is this robot's, on this court, and at most max_age_s old (a time stamp from
+        the future is as unusable as a stale one)."""
+        try:
+            saved = SavedPose.model_validate_json(self.path.read_bytes())
+        except FileNotFoundError:
+            return None
+        except (OSError, ValidationError, ValueError) as exc:
+            log.warning("ignoring the saved pose %s: %s", self.path, str(exc).splitlines()[0])
+            return None
+        age = saved.age_s()
+        if saved.robot_id != self.robot_id or saved.court != court or not 0.0 <= age <= max_age_s:
+            log.info("not resuming from %s (robot %s, court %s, %.1f s old)", self.path, saved.robot_id, saved.court,
+                     age)
+            return None
+        return saved
+
+    def offer(self, prior: Prior | None, court: str, wall_ns: int) -> None:
+        """Save a tracked pose when the last save is at least SAVE_PERIOD_NS old."""
+        if prior is None or prior.pose is None or wall_ns - self._last_ns < SAVE_PERIOD_NS:
+            return
+        self._last_ns = wall_ns
+        saved = SavedPose(robot_id=self.robot_id, court=court, x=float(prior.pose[0]), y=float(prior.pose[1]),
+                          yaw=float(prior.pose[2]), std_m=float(prior.std_m), yaw_std_rad=float(prior.yaw_std_rad or 0.0),
+                          wall_ns=wall_ns)
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            tmp.write_text(saved.model_dump_json())
+            os.replace(tmp, self.path)
+        except OSError as exc:  # a full or read-only disk must not stop inference
+            log.warning("cannot save the pose to %s: %s", self.path, exc)

@@ -1,0 +1,167 @@
+"""`courtloc bench twin`: the metric arithmetic on constructed poses, the scenario events, and one short
+real run (router + four stage processes) checking the report's keys and its pose-truth matching."""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from courtloc.bench_twin import scenario_events
+from courtloc.bench_twin_metrics import Event, PoseSample, TruthSample, twin_metrics
+from courtloc.sim.scenarios import SCENARIOS, scenario
+
+MS = 1_000_000
+REQUIRED = ("n", "mean_err_m", "median_err_m", "p95_err_m", "yaw_median_deg", "valid_fraction", "valid_wrong",
+            "recovery_s_mean", "recovery_s_max")
+
+
+def _truths(n: int) -> list[TruthSample]:
+    """Frame k at t = 100 ms * k, standing at (k, 0) facing 0."""
+    return [TruthSample(seq=k, capture_ns=100 * MS * k, x=float(k), y=0.0, yaw=0.0) for k in range(n)]
+
+
+def _pose(k: int, dx: float, valid: bool, dyaw: float | None = 0.0, latency_ms: int = 30) -> PoseSample:
+    return PoseSample(capture_ns=100 * MS * k, published_ns=100 * MS * k + latency_ms * MS, x=float(k) + dx, y=0.0,
+                      yaw=dyaw, valid=valid, reason="" if valid else "low_quality")
+
+
+def test_errors_over_all_poses_and_over_valid_ones():
+    truths = _truths(10)
+    # Errors 0.0 .. 0.9 m; frames 0-5 valid (errors 0 .. 0.5), 6-9 invalid; frame 3 valid with yaw 0.2 rad off.
+    poses = [_pose(k, 0.1 * k, valid=k <= 5, dyaw=0.2 if k == 3 else 0.0) for k in range(10)]
+    poses[5] = _pose(5, 0.6, valid=True)  # a valid pose 0.6 m off: the one valid_wrong
+    r = twin_metrics(poses, truths, [Event("start", 0)], end_ns=10**10)
+    errors = [0.1 * k for k in range(10)]
+    errors[5] = 0.6
+    valid_errors = errors[:6]
+    assert r["n"] == 10 and r["valid_n"] == 6 and r["valid_fraction"] == pytest.approx(0.6)
+    assert r["mean_err_m"] == pytest.approx(sum(errors) / 10)
+    assert r["median_err_m"] == pytest.approx(sorted(errors)[4] / 2 + sorted(errors)[5] / 2)
+    assert r["valid_mean_err_m"] == pytest.approx(sum(valid_errors) / 6)
+    assert r["valid_wrong"] == 1 and r["valid_wrong_max_err_m"] == pytest.approx(0.6)
+    # p95 by linear interpolation between order statistics: 0.9 * 0.55 + 0.8 * 0.45 over all ten.
+    assert r["p95_err_m"] == pytest.approx(sorted(errors)[8] + 0.55 * (sorted(errors)[9] - sorted(errors)[8]))
+    assert r["yaw_median_deg"] == pytest.approx(0.0) and r["valid_yaw_median_deg"] == pytest.approx(0.0)
+    assert r["invalid_reasons"] == {"low_quality": 4}
+
+
+def test_poses_are_matched_by_capture_stamp_not_by_order():
+    truths = _truths(5)
+    # Delivered out of order, one pose of a frame whose truth never arrived.
+    poses = [_pose(3, 0.0, True), _pose(1, 0.0, True),
+             PoseSample(capture_ns=123, published_ns=200, x=50.0, y=0.0, yaw=0.0, valid=True)]
+    r = twin_metrics(poses, truths, [], end_ns=10**10)
+    assert r["n"] == 2 and r["mean_err_m"] == pytest.approx(0.0) and r["unmatched_poses"] == 1
+    assert r["recovery_s_mean"] is None and r["events"] == 0
+
+
+def test_yaw_error_wraps_around_pi():
+    truths = [TruthSample(0, 0, 0.0, 0.0, math.pi - 0.01)]
+    r = twin_metrics([PoseSample(0, 1, 0.0, 0.0, -math.pi + 0.01, True)], truths, [], end_ns=10)
+    assert r["yaw_median_deg"] == pytest.approx(math.degrees(0.02))
+
+
+def test_recovery_is_start_of_view_to_first_valid_publication_and_censored_when_never():
+    truths = _truths(40)
+    valid_frames = set(range(3, 10)) | {25}  # the start recovers at frame 3; the kidnap at 20 recovers at 25
+    poses = [_pose(k, 2.0 if k == 25 else 0.0, valid=k in valid_frames) for k in range(40)]
+    events = [Event("start", 0), Event("kidnap", 20 * 100 * MS), Event("outage", 30 * 100 * MS)]
+    r = twin_metrics(poses, truths, events, end_ns=40 * 100 * MS)
+    start, kidnap, outage = r["recoveries"]
+    assert start["recovery_s"] == pytest.approx(0.33) and start["first_valid_wrong"] is False
+    assert kidnap["recovery_s"] == pytest.approx(0.53) and kidnap["first_valid_wrong"] is True
+    assert kidnap["first_valid_err_m"] == pytest.approx(2.0)
+    # Never valid again: counted with the time it had until the end of the run, as unrecovered.
+    assert outage["recovered"] is False and outage["recovery_s"] == pytest.approx(1.0)
+    assert r["recovery_s_mean"] == pytest.approx((0.33 + 0.53 + 1.0) / 3)
+    assert r["recovery_s_max"] == pytest.approx(1.0)
+    assert r["events_unrecovered"] == 1 and r["recovery_wrong"] == 1
+
+
+def test_an_event_ends_at_the_next_one():
+    truths = _truths(20)
+    poses = [_pose(k, 0.0, valid=k >= 15) for k in range(20)]
+    r = twin_metrics(poses, truths, [Event("start", 0), Event("kidnap", 10 * 100 * MS)], end_ns=20 * 100 * MS)
+    first, second = r["recoveries"]
+    assert first["recovered"] is False and first["recovery_s"] == pytest.approx(1.0)
+    assert second["recovered"] is True and second["recovery_s"] == pytest.approx(0.53)
+
+
+def test_scenario_events_start_at_the_first_usable_frame():
+    sc = scenario("outage", "seed-gazebo", seconds=20.0)
+    (o_start, o_end), = sc.sim.outages_s
+    fps = 10.0
+    truths = [TruthSample(k, 1000 + 7 * k, 0.0, 0.0, 0.0) for k in range(200)]
+    poses = [PoseSample(1000 + 7 * k, 1000 + 7 * k + 3, 0.0, 0.0, 0.0, True) for k in range(5, 200)]
+    kill_ns = 1000 + 7 * 150 + 3
+    events = scenario_events(sc, truths, poses, fps, kill_ns)
+    assert [e.kind for e in events] == ["start", "outage", "infer_restart"]
+    assert events[0].start_ns == 1000 + 7 * 5  # the first pose: the chain's first frame
+    assert events[1].start_ns == 1000 + 7 * math.ceil(o_end * fps)
+    assert events[2].start_ns == 1000 + 7 * 151  # the first frame the restarted process answered
+    kid = scenario("kidnap", "seed-gazebo", seconds=15.0)  # kidnaps at 5 and 10 s: frames 50, 100
+    assert [e.kind for e in scenario_events(kid, truths, poses, fps, None)] == ["start", "kidnap", "kidnap"]
+
+
+@pytest.mark.parametrize("name", list(SCENARIOS))
+def test_every_scenario_builds_for_both_courts(name: str):
+    from courtloc.sim.source import SimSource
+
+    for court in ("seed-gazebo", "robocon2025"):
+        sc = scenario(name, court, seconds=12.0)
+        with SimSource(sc.sim) as source:  # opening validates the start pose and the trajectory on this court
+            assert source.pose_at_index(0) == pytest.approx(sc.start_pose)
+
+
+def test_bench_twin_runs_the_chain_and_writes_every_key(tmp_path: Path):
+    out = tmp_path / "twin.json"
+    result = subprocess.run([sys.executable, "-m", "courtloc", "bench", "twin", "--court", "seed-gazebo",
+                             "--scenario", "clean", "--seconds", "2", "--json", str(out)],
+                            capture_output=True, text=True, timeout=240)
+    assert result.returncode == 0, result.stderr[-3000:]
+    report = json.loads(out.read_text())
+    clean = report["clean"]
+    for key in REQUIRED:
+        assert key in clean
+    assert clean["frames"] >= 60  # 2 s at 30 fps, every truth recorded
+    assert 0 < clean["n"] <= clean["frames"] and clean["unmatched_poses"] == 0
+    assert math.isfinite(clean["mean_err_m"]) and clean["valid_n"] == round(clean["valid_fraction"] * clean["n"])
+    assert clean["events"] == 1 and clean["recoveries"][0]["kind"] == "start"
+    assert report["run"]["court"] == "seed-gazebo" and report["run"]["scenarios"] == ["clean"]
+
+
+def test_bench_twin_refuses_an_unknown_scenario_in_one_line():
+    result = subprocess.run([sys.executable, "-m", "courtloc", "bench", "twin", "--scenario", "clean,rainy"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode != 0
+    assert result.stderr.strip().count("\n") == 0 and "unknown scenario 'rainy'" in result.stderr
+
+
+def test_the_infer_stage_is_told_the_scenarios_start(tmp_path: Path):
+    import argparse
+
+    from courtloc.bench_twin import deployment_for
+    from courtloc.services.deployment import sim_start
+
+    sc = scenario("minus_x_start", "robocon2025", seconds=10.0)
+
+    def config(tell: str):
+        args = argparse.Namespace(config=None, camera=None, fps=30.0, tell_start=tell)
+        return deployment_for(sc, args, 7999, tmp_path / "store", {})
+
+    told = config("pose")
+    assert told.infer.start is not None and (told.infer.start.x, told.infer.start.y) == (-3.0, 1.0)
+    assert told.infer.start.yaw_deg == pytest.approx(math.degrees(-0.5))
+    assert told.infer.court == "robocon2025" and told.camera.sim.court == "robocon2025"
+    assert told.zenoh.connect == ["tcp/127.0.0.1:7999"] and told.router.listen == told.zenoh.connect
+    assert told.infer.store == tmp_path / "store"
+    half = config("half").infer.start
+    assert half is not None and half.half == "-x" and half.x is None
+    assert config("none").infer.start is None
+    # `courtloc up` with a sim random walk that starts elsewhere than the centre: the start it derives.
+    derived = sim_start(sc.sim)
+    assert derived is not None and (derived.x, derived.y) == (-3.0, 1.0)
