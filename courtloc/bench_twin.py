@@ -76,8 +76,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"courtloc bench twin: {exc}", file=sys.stderr)
         return 1
     report["run"] = {"court": args.court, "camera": args.camera, "seconds": args.seconds, "fps": args.fps,
-                     "seed": args.seed, "tell_start": args.tell_start, "scenarios": names, "load_avg": list(os.getloadavg()),
-                     "cpus": os.cpu_count(), "command": " ".join(["courtloc", *sys.argv[1:]])}
+                     "seed": args.seed, "tell_start": args.tell_start, "scenarios": names,
+                     "load_avg": list(os.getloadavg()), "cpus": os.cpu_count(),
+                     "command": " ".join(["courtloc", *sys.argv[1:]])}
     text = json.dumps(report, indent=1)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
@@ -115,7 +116,8 @@ def _print_row(name: str, r: dict[str, Any]) -> None:
 
 
 # ---- one scenario -----------------------------------------------------------------------------------
-def deployment_for(sc, args: argparse.Namespace, port: int, store: Path, infer_fields: dict[str, Any]):  # noqa: ANN001, ANN201
+def deployment_for(sc, args: argparse.Namespace, port: int, store: Path,  # noqa: ANN001, ANN201
+                   infer_fields: dict[str, Any]):
     """The base deployment's stage settings with the bench's bus, court and scenario camera."""
     from courtloc.deployment import DeploymentConfig, available_stages, load_deployment
 
@@ -297,6 +299,8 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any]) -> 
     last = max((t.capture_ns for t in truths), default=0)
     for row in result["recoveries"]:
         row["t_s"] = round((row.pop("start_ns") - first) / 1e9, 3)
+    for row in result["wrong_runs"]:
+        row["t_s"] = [round((row.pop("start_ns") - first) / 1e9, 3), round((row.pop("end_ns") - first) / 1e9, 3)]
     # Sim time is frames / fps: a camera that cannot render at fps plays the robot in slow motion.
     camera_fps = (len(truths) - 1) / ((last - first) / 1e9) if last > first else None
     result.update(description=sc.description, frames=len(truths), camera_fps=camera_fps,

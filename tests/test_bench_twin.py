@@ -165,3 +165,14 @@ def test_the_infer_stage_is_told_the_scenarios_start(tmp_path: Path):
     # `courtloc up` with a sim random walk that starts elsewhere than the centre: the start it derives.
     derived = sim_start(sc.sim)
     assert derived is not None and (derived.x, derived.y) == (-3.0, 1.0)
+
+
+def test_valid_wrong_poses_are_grouped_into_runs():
+    truths = _truths(12)
+    # Frames 2-4 valid and 1 m off with yaw pi off (the twin), 5 invalid, 7 valid and 0.8 m off, rest right.
+    poses = [_pose(k, 1.0 if k in (2, 3, 4, 5) else 0.8 if k == 7 else 0.0, valid=k != 5,
+                   dyaw=math.pi if k in (2, 3, 4) else 0.0) for k in range(12)]
+    runs = twin_metrics(poses, truths, [], end_ns=10**10)["wrong_runs"]
+    assert [(r["start_ns"], r["end_ns"], r["poses"]) for r in runs] == [(200 * MS, 400 * MS, 3), (700 * MS, 700 * MS, 1)]
+    assert runs[0]["max_err_m"] == pytest.approx(1.0) and runs[0]["yaw_err_median_deg"] == pytest.approx(180.0)
+    assert runs[1]["max_err_m"] == pytest.approx(0.8) and runs[1]["yaw_err_median_deg"] == pytest.approx(0.0)
