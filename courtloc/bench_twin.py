@@ -73,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
     except (BenchError, ValueError, OSError) as exc:
         if args.verbose:
             raise
-        print(f"courtloc bench twin: {exc}", file=sys.stderr)
+        # One line, even for a multi-line reason (a config error lists its fields on their own lines).
+        print(f"courtloc bench twin: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
     report["run"] = {"court": args.court, "camera": args.camera, "seconds": args.seconds, "fps": args.fps,
                      "seed": args.seed, "tell_start": args.tell_start, "scenarios": names,
@@ -266,11 +267,7 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any]) -> 
                 if not child.ready.wait(15.0):
                     raise BenchError(f"{child.name} not ready after 15 s (log: {child.log_path})")
             recorder.start(stop)
-            if not recorder.subscribed.wait(30.0) or not recorder.wait_alive(STAGES_BEFORE_CAMERA, 90.0):
-                with recorder._lock:  # noqa: SLF001 - the watcher's own lock guards its state
-                    missing = set(STAGES_BEFORE_CAMERA) - recorder.state.alive
-                raise BenchError(f"scenario {sc.name}: stage(s) {sorted(missing)} not alive after 90 s "
-                                 f"(logs: {log_dir}; keep them with --logs)")
+            _wait_for_stages(sc.name, recorder, [children[n] for n in STAGES_BEFORE_CAMERA], log_dir)
             children["camera"].start(log_dir)
             deadline = time.monotonic() + 60.0 + 6.0 * args.seconds
             while recorder.record.last_seq < frames - 1:
@@ -308,6 +305,34 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any]) -> 
                   stale_or_dropped={name: {"dropped": s["dropped"], "stale": s["stale"]}
                                     for name, s in summary["stages"].items()})
     return result
+
+
+def _wait_for_stages(name: str, recorder, stages: list, log_dir: Path,  # noqa: ANN001
+                     timeout_s: float = 90.0) -> None:
+    """Until every stage is alive on the bus; a stage process that exits meanwhile fails the scenario at
+    once with the last line of its log (a refused model, a bad setting)."""
+    deadline = time.monotonic() + timeout_s
+    if not recorder.subscribed.wait(timeout_s):
+        raise BenchError(f"scenario {name}: the bench's bus client did not connect to the router in {timeout_s:.0f} s")
+    names = tuple(child.name for child in stages)
+    while not recorder.wait_alive(names, 1.0):  # woken by liveliness; each second, also look for a dead stage
+        for child in stages:
+            if not child.alive():
+                raise BenchError(f"scenario {name}: {child.name} exited (code {child.process.returncode}): "
+                                 f"{_last_line(child.log_path)}")
+        if time.monotonic() > deadline:
+            with recorder._lock:  # noqa: SLF001 - the watcher's own lock guards its state
+                missing = set(names) - recorder.state.alive
+            raise BenchError(f"scenario {name}: stage(s) {sorted(missing)} not alive after {timeout_s:.0f} s "
+                             f"(logs: {log_dir}; keep them with --logs)")
+
+
+def _last_line(path: Path | None) -> str:
+    try:
+        lines = [line for line in path.read_text(errors="replace").splitlines() if line.strip()] if path else []
+    except OSError:
+        lines = []
+    return lines[-1].strip() if lines else "(no output)"
 
 
 def scenario_events(sc, truths: list, poses: list, fps: float, kill_ns: int | None) -> list:  # noqa: ANN001

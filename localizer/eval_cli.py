@@ -64,7 +64,7 @@ def _reported(command: str, handler):  # noqa: ANN001, ANN202
         except (ValueError, OSError) as exc:  # DatasetError and ManifestError are ValueErrors
             if getattr(args, "verbose", 0):
                 raise
-            print(f"courtloc {command}: {exc}", file=sys.stderr)
+            print(f"courtloc {command}: {' '.join(str(exc).split())}", file=sys.stderr)  # one line, always
             return 1
     return run
 

@@ -176,3 +176,16 @@ def test_valid_wrong_poses_are_grouped_into_runs():
     assert [(r["start_ns"], r["end_ns"], r["poses"]) for r in runs] == [(200 * MS, 400 * MS, 3), (700 * MS, 700 * MS, 1)]
     assert runs[0]["max_err_m"] == pytest.approx(1.0) and runs[0]["yaw_err_median_deg"] == pytest.approx(180.0)
     assert runs[1]["max_err_m"] == pytest.approx(0.8) and runs[1]["yaw_err_median_deg"] == pytest.approx(0.0)
+
+
+def test_a_stage_that_cannot_start_fails_the_bench_at_once_in_one_line(tmp_path: Path):
+    not_a_dir = tmp_path / "file"
+    not_a_dir.write_text("")
+    result = subprocess.run([sys.executable, "-m", "courtloc", "bench", "twin", "--scenario", "clean", "--seconds", "1",
+                             "--store", str(not_a_dir / "store")], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 1
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "infer exited" in lines[0] and "Not a directory" in lines[0]
+    bad = subprocess.run([sys.executable, "-m", "courtloc", "bench", "twin", "--scenario", "clean", "--seconds", "1",
+                          "--infer", "threads=0"], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 1 and bad.stderr.strip().count("\n") == 0 and "infer.threads" in bad.stderr
