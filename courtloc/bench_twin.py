@@ -53,6 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--infer", action="append", default=[], metavar="FIELD=VALUE",
                         help="set an [infer] field for every scenario (VALUE is JSON, or a plain string)")
     parser.add_argument("--logs", type=Path, default=None, help="keep the stages' logs here (default: discarded)")
+    parser.add_argument("--markdown", type=Path, default=None,
+                        help="also write the README's table rows for this run here (header included)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -81,12 +83,35 @@ def run(args: argparse.Namespace) -> int:
                      "load_avg": list(os.getloadavg()), "cpus": os.cpu_count(),
                      "command": " ".join(["courtloc", *sys.argv[1:]])}
     text = json.dumps(report, indent=1)
+    if args.markdown is not None:
+        args.markdown.write_text(markdown_table(report) + "\n")
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(text + "\n")
     else:
         print(text)
     return 0
+
+
+def markdown_table(report: dict[str, Any]) -> str:
+    """The README's table ("On the twin") for one run: one row per scenario."""
+    def num(value: float | None, fmt: str, scale: float = 1.0) -> str:
+        return "-" if value is None else fmt.format(value * scale)
+
+    lines = ["| court | scenario | n | mean / median / p95 err (all) m | yaw median deg | valid | "
+             "valid mean / p95 m | valid_wrong | recovery mean / max s |", "|---|---|---|---|---|---|---|---|---|"]
+    court = report["run"]["court"]
+    for name in report["run"]["scenarios"]:
+        r = report[name]
+        notes = "".join([f" ({r['events_unrecovered']} unrecovered)" if r["events_unrecovered"] else "",
+                         f", {r['recovery_wrong']} first valid wrong" if r["recovery_wrong"] else ""])
+        lines.append(
+            f"| {court} | {name} | {r['n']} | {num(r['mean_err_m'], '{:.2f}')} / {num(r['median_err_m'], '{:.3f}')} / "
+            f"{num(r['p95_err_m'], '{:.2f}')} | {num(r['yaw_median_deg'], '{:.2f}')} | "
+            f"{num(r['valid_fraction'], '{:.1f}', 100)} % | {num(r['valid_mean_err_m'], '{:.2f}')} / "
+            f"{num(r['valid_p95_err_m'], '{:.2f}')} | {r['valid_wrong']} | {num(r['recovery_s_mean'], '{:.2f}')} / "
+            f"{num(r['recovery_s_max'], '{:.2f}')}{notes} |")
+    return "\n".join(lines)
 
 
 def _parse_fields(items: list[str]) -> dict[str, Any]:

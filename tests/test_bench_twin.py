@@ -120,7 +120,8 @@ def test_every_scenario_builds_for_both_courts(name: str):
 def test_bench_twin_runs_the_chain_and_writes_every_key(tmp_path: Path):
     out = tmp_path / "twin.json"
     result = subprocess.run([sys.executable, "-m", "courtloc", "bench", "twin", "--court", "seed-gazebo",
-                             "--scenario", "clean", "--seconds", "2", "--json", str(out)],
+                             "--scenario", "clean", "--seconds", "2", "--json", str(out),
+                             "--markdown", str(tmp_path / "table.md")],
                             capture_output=True, text=True, timeout=240)
     assert result.returncode == 0, result.stderr[-3000:]
     report = json.loads(out.read_text())
@@ -132,6 +133,10 @@ def test_bench_twin_runs_the_chain_and_writes_every_key(tmp_path: Path):
     assert math.isfinite(clean["mean_err_m"]) and clean["valid_n"] == round(clean["valid_fraction"] * clean["n"])
     assert clean["events"] == 1 and clean["recoveries"][0]["kind"] == "start"
     assert report["run"]["court"] == "seed-gazebo" and report["run"]["scenarios"] == ["clean"]
+    header, rule, row = (tmp_path / "table.md").read_text().strip().splitlines()
+    assert header.count("|") == rule.count("|") == row.count("|")
+    assert row.startswith(f"| seed-gazebo | clean | {clean['n']} | {clean['mean_err_m']:.2f} / ")
+    assert f"| {clean['valid_wrong']} |" in row
 
 
 def test_bench_twin_refuses_an_unknown_scenario_in_one_line():
