@@ -100,3 +100,24 @@ class ModelReply(_Msg):
     version: int = 0
     models: list[ModelInfo] = Field(default_factory=list)
     shadow: Optional[ShadowStats] = None
+
+
+class SetPose(_Msg):
+    """The pit tells the robot where it is (like an initial-pose tool): court metres, heading in radians CCW
+    from +x, each with how well it is known. The localizer takes it as evidence, confirmed against the view."""
+
+    op: Literal["set_pose"] = "set_pose"
+    x: float = Field(allow_inf_nan=False)
+    y: float = Field(allow_inf_nan=False)
+    yaw: float = Field(allow_inf_nan=False, description="radians")
+    std_m: float = Field(0.3, gt=0, le=20, allow_inf_nan=False)
+    yaw_std_rad: float = Field(0.2, gt=0, le=3.2, allow_inf_nan=False)
+
+
+class PoseRequest(_Msg):
+    body: SetPose
+
+
+class PoseReply(_Msg):
+    ok: bool
+    reason: str = ""

@@ -11,7 +11,7 @@ from typing import Literal
 
 from pydantic import BaseModel
 
-from courtloc.common.control import ModelReply, ModelRequest
+from courtloc.common.control import ModelReply, ModelRequest, PoseReply, PoseRequest
 from courtloc.common.messages import Edges, Frame, GroundTruth, Health, Pose, ShotSolution
 
 ROOT = "courtloc"
@@ -125,6 +125,8 @@ CONTROLS: dict[str, Control] = {
     for c in (
         Control("infer", "model", ModelRequest, ModelReply, (PIT,), 120.0,
                 "model store: push (chunked, resumable), list, activate, rollback, shadow"),
+        Control("infer", "set_pose", PoseRequest, PoseReply, (PIT,), 10.0,
+                "set the robot's pose from the pit (`courtloc pose set`): evidence the localizer confirms"),
     )
 }
 

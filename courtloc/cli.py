@@ -17,6 +17,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "courtloc.stage_cli",
     "courtloc.up_cli",
     "courtloc.model_cli",
+    "courtloc.pose_cli",
     "courtloc.training.cli",
     "courtloc.localizer.eval_cli",
     "courtloc.localizer.cli",

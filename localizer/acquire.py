@@ -15,9 +15,12 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    A pose prior scores each hypothesis by its Mahalanobis distance d^2 (position std grown by
    `motion_sigma_mps` per second since the prior held, heading likewise); hypotheses with d^2 >
    `prior_gate_chi2` are not explained by the prior. The prior decides for the best-scoring
-   hypothesis when every other one scores worse by at least `decide_log_ratio` in log-likelihood
-   (d^2 / 2). A half prior keeps the hypotheses in that half (|x| >= the centre margin). A lost
-   track's prior that explains none of the hypotheses (a kidnap) is dropped; a start or pit prior stays.
+   hypothesis when it lies within `decide_chi2` (3 sigma) and every other one scores worse by at least
+   `decide_log_ratio` in log-likelihood (d^2 / 2). A half prior keeps the hypotheses in that half (|x| >= the centre margin). A lost
+   track's prior that explains none of the hypotheses for `kidnap_frames` frames means the robot was moved (a kidnap, or a track
+   that had snapped to a wrong parallel line): it becomes a kidnap prior, the same place with
+   `kidnap_sigma_m` std and the heading unknown (the assumption: a robot pushed or carried in a match
+   lands within a few metres); one that explains nothing either is dropped. A start or pit prior stays.
    Without a prior, only a lone hypothesis is decided (never on a symmetric court).
 3. Confirmation. The decided hypothesis must be the one answer for `confirm_frames` frames in a row
    with a valid fit (`confirm_frames_tight` when a pose prior known to `tight_prior_m` decided: a wrong
@@ -38,7 +41,7 @@ import numpy as np
 from courtloc.localizer import motion
 from courtloc.localizer.config import AcquireConfig, Half
 
-PriorSource = Literal["start", "pit", "track"]
+PriorSource = Literal["start", "pit", "track", "kidnap"]
 
 
 @dataclass(frozen=True)
@@ -64,7 +67,7 @@ class Prior:
 
 @dataclass(frozen=True)
 class Hypothesis:
-    """A tracked candidate pose (and where it was first seen, for diagnostics)."""
+    """A tracked candidate pose and where and when it was first seen (what a pose prior is compared with)."""
 
     state: motion.MotionState
     origin: np.ndarray
@@ -85,6 +88,7 @@ class Acquiring:
     since_search: int = 0  # frames since the last global search
     decided_pose: np.ndarray | None = field(default=None, compare=False)
     decided_t: float | None = None  # when the decision being confirmed was first made
+    unexplained: int = 0  # frames in a row the prior explained no hypothesis
 
 
 def _yaw_diff(a: float, b: float) -> float:
@@ -118,14 +122,18 @@ class Decision:
     index: int | None  # the decided hypothesis, None: nothing decides
     explained: bool  # the prior explains at least one hypothesis (False: drop a lost track's prior)
     tight: bool = False  # decided by a pose prior known to within `tight_prior_m` (needs less confirmation)
+    kidnap: bool = False  # decided by a kidnap prior (needs more)
 
 
 def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None, t: float | None,
            cfg: AcquireConfig, centre_margin_m: float) -> Decision:
-    """Which hypothesis the evidence picks (see the module's rule 2) at time t, by the hypotheses' current
-    poses: all of them at one time, since a hypothesis tracked through a fast turn near the centre can
-    have swapped to its twin's basin. `half`: the package's fixed half ('half' symmetry mode), applied on
-    top of the prior."""
+    """Which hypothesis the evidence picks (see the module's rule 2). A pose prior is compared with each
+    hypothesis where and when it was first seen (its origin): a hypothesis tracked since carries that
+    evidence, so waiting does not wash it out; a half is judged at the current pose (the robot may leave
+    the centre). Sound because every hypothesis's mirror twin is kept beside it with the mirrored origin
+    (GeometricLocalizer._with_twins): without that, a lone survivor near the prior would be decided while
+    its twin, equally near, was missing. `half`: the package's fixed half ('half' symmetry mode), applied
+    on top of the prior. `t` is the decision's time (the tight flag's age)."""
     poses = [h.pose for h in hypotheses]
     keep = list(range(len(poses)))
     if half is not None:
@@ -134,13 +142,16 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
     if prior is not None and prior.half is not None:
         keep = [i for i in keep if in_half(poses[i], prior.half, centre_margin_m)]
     if prior is not None and prior.pose is not None and keep:
-        d2 = {i: prior_distance2(prior, poses[i], t, cfg) for i in keep}
+        d2 = {i: prior_distance2(prior, hypotheses[i].origin, hypotheses[i].origin_t, cfg) for i in keep}
         inside = [i for i in keep if d2[i] <= cfg.prior_gate_chi2]
         if not inside:
             return Decision(None, explained=False)
         best = min(inside, key=d2.__getitem__)
-        if all(0.5 * (d2[i] - d2[best]) >= cfg.decide_log_ratio for i in keep if i != best):
-            age = 0.0 if t is None or prior.t is None else abs(t - prior.t)
-            return Decision(best, explained, tight=prior.std_m + cfg.motion_sigma_mps * age <= cfg.tight_prior_m)
+        if d2[best] <= cfg.decide_chi2 and all(0.5 * (d2[i] - d2[best]) >= cfg.decide_log_ratio
+                                               for i in keep if i != best):
+            origin_t = hypotheses[best].origin_t
+            age = 0.0 if origin_t is None or prior.t is None else abs(origin_t - prior.t)
+            return Decision(best, explained, tight=prior.std_m + cfg.motion_sigma_mps * age <= cfg.tight_prior_m,
+                            kidnap=prior.source == "kidnap")
         return Decision(None, explained)
     return Decision(keep[0] if len(keep) == 1 else None, explained)

@@ -18,6 +18,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "default_camera)")
     build.add_argument("--config", type=Path, help="LocalizerConfig JSON (default: built-in defaults)")
     build.add_argument("--report", type=Path, help="crosseval JSON: its numbers go into the manifest and README")
+    build.add_argument("--no-band-bias", action="store_true", help="clear the config's thin-band bias (it is the "
+                       "renderer's or camera's: calibrated on other frames it does not apply)")
     build.add_argument("--name", default="courtloc-geometric")
     build.add_argument("--version", type=int, default=1)
     build.set_defaults(func=_build)
@@ -66,6 +68,8 @@ def _build(args: argparse.Namespace) -> int:
 
     court, config = load_court(args.court), _config(args.config)
     camera = load_camera(args.camera or court.default_camera)
+    if args.no_band_bias:
+        config.fit.band_bias_widths, config.fit.band_bias_samples = [], []
     report = json.loads(args.report.read_text()) if args.report else None
     metrics, data = {}, None
     if report:

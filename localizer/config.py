@@ -88,6 +88,9 @@ class MotionConfig(BaseModel):
     max_lost_frames: int = Field(10, ge=0, description="frames without a usable fit before the court is searched "
                                  "again (the last pose still picks the symmetry twin)")
     max_gap_s: float = Field(1.0, gt=0, description="a longer gap between frames also searches the court again")
+    max_track_std_m: float = Field(0.5, gt=0, description="a track known worse than this (worst-direction position "
+                                   "std, e.g. after riding degenerate views) is dropped: a valid fit near it would be "
+                                   "a new acquisition, not evidence for the track")
     frame_period_s: float = Field(0.085, gt=0, description="assumed time between frames that carry no time")
 
 
@@ -105,6 +108,8 @@ class AcquireConfig(BaseModel):
     confirm_frames: int = Field(3, ge=1, description="frames a decided hypothesis must answer valid before the "
                                 "track starts")
     confirm_frames_tight: int = Field(1, ge=1, description="... when a pose prior within tight_prior_m decided")
+    confirm_frames_kidnap: int = Field(10, ge=1, description="... when a kidnap prior decided (it admits wrong "
+                                       "hypotheses metres away: the view must change before one is trusted)")
     tight_prior_m: float = Field(1.0, gt=0, description="a pose prior this well known (std, grown by its age) is "
                                  "tight")
     research_frames: int = Field(15, ge=1, description="while undecided, search the court again this often")
@@ -112,6 +117,14 @@ class AcquireConfig(BaseModel):
     yaw_sigma_rps: float = Field(1.5, gt=0, description="... and its heading std, radians per second")
     prior_gate_chi2: float = Field(16.0, gt=0, description="a hypothesis farther from a pose prior (d^2) is not "
                                    "explained by it")
+    lost_std_m: float = Field(1.0, gt=0, description="a lost track's pose is a prior at least this wide (a track "
+                              "dropped after degenerate views can sit on a parallel line 1.85 m away, its std unaware)")
+    decide_chi2: float = Field(9.0, gt=0, description="the hypothesis a pose prior decides for must lie within this "
+                               "d^2 of it (3 sigma): farther, the truth may be a pose the search could not pin down")
+    kidnap_frames: int = Field(15, ge=1, description="frames a lost track's pose must explain no hypothesis before "
+                               "it is taken for a kidnap (the truth may just not be found yet in a degenerate view)")
+    kidnap_sigma_m: float = Field(3.0, ge=0, description="a lost track's pose that explains no hypothesis (the robot "
+                                  "was moved) is kept as a prior this wide, heading unknown (0: dropped)")
     decide_log_ratio: float = Field(4.6, gt=0, description="the prior decides when the best hypothesis is this much "
                                     "more likely (log) than every other (4.6: 100 to 1)")
 

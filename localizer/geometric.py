@@ -131,7 +131,8 @@ class GeometricLocalizer:
 
     def lost_prior(self, state: motion.MotionState) -> acquire.Prior:
         """A lost track's last pose as the prior of the acquisition after it."""
-        return acquire.Prior(source="track", pose=state.pose, std_m=state.position_std_m,
+        return acquire.Prior(source="track", pose=state.pose,
+                             std_m=max(state.position_std_m, self.config.acquire.lost_std_m),
                              yaw_std_rad=math.sqrt(max(float(state.cov[2, 2]), 0.0)), t=state.t)
 
     def _step(self, hits: ProjectedHits, state: motion.MotionState, t: float | None) -> TrackStep:
@@ -175,35 +176,45 @@ class GeometricLocalizer:
         hypotheses = tuple(h for _, h in live)
         if not live:
             fit = searched or fit_pose(self.field, hits, np.zeros(3), cfg.fit, cfg.quality)
-            res = self._answer(LocalizeResult(pose=fit.pose, fit=fit, mode="global"), fit.pose, invalid=True)
+            # Nothing fits: the answer (invalid) is the prior's pose when there is one, not a fit anywhere.
+            pose = prior.pose if prior is not None and prior.pose is not None else fit.pose
+            res = self._answer(LocalizeResult(pose=fit.pose, fit=fit, mode="global"), pose, invalid=True)
             return TrackStep(self._status(res, "searching"), acquire.Acquiring(prior, (), 0, since))
         half = cfg.half if cfg.symmetry == "half" else None
         # While a decision is being confirmed the prior is judged at the time it was made: its spread growing
         # frame by frame must not undo a decision the next frames only have to confirm.
         t_eval = state.decided_t if state.agreed > 0 and state.decided_t is not None else t
         decision = acquire.decide(list(hypotheses), prior, half, t_eval, acfg, cfg.centre_margin_m)
-        if not decision.explained and prior is not None and prior.source == "track":
-            prior = None  # the view contradicts the lost track's last pose (kidnap): it is no evidence
-            decision = acquire.decide(list(hypotheses), None, half, t_eval, acfg, cfg.centre_margin_m)
+        unexplained = 0 if decision.explained else state.unexplained + 1
+        if unexplained >= acfg.kidnap_frames and prior is not None and prior.source in ("track", "kidnap"):
+            unexplained = 0
+            # The view contradicts the lost track's last pose: the robot was moved (acquire.py, rule 2).
+            prior = (acquire.Prior("kidnap", pose=prior.pose, std_m=max(prior.std_m, acfg.kidnap_sigma_m), t=prior.t)
+                     if prior.source == "track" and acfg.kidnap_sigma_m > 0 else None)
+            decision = acquire.decide(list(hypotheses), prior, half, t_eval, acfg, cfg.centre_margin_m)
+            if not decision.explained:
+                prior = None
+                decision = acquire.decide(list(hypotheses), None, half, t_eval, acfg, cfg.centre_margin_m)
         poses = [h.pose for h in hypotheses]
         if decision.index is None:
             best = self._nearest(list(hypotheses), prior, t)
             res = self._answer(live[best][0], poses[best], invalid=True)
             res = LocalizeResult(pose=res.pose, fit=res.fit, mode=res.mode, status="ambiguous",
                                  alternatives=[p for i, p in enumerate(poses) if i != best])
-            return TrackStep(res, acquire.Acquiring(prior, hypotheses, 0, since))
+            return TrackStep(res, acquire.Acquiring(prior, hypotheses, 0, since, unexplained=unexplained))
         res, chosen = live[decision.index]
         # The same hypothesis as last frame: within what a robot moves in a frame or two.
         same = state.decided_pose is not None and math.hypot(*(state.decided_pose[:2] - chosen.pose[:2])) <= 0.5
         agreed = (state.agreed + 1 if same else 1) if res.valid and not blocked else 0
-        needed = acfg.confirm_frames_tight if decision.tight else acfg.confirm_frames
+        needed = (acfg.confirm_frames_kidnap if decision.kidnap else
+                  acfg.confirm_frames_tight if decision.tight else acfg.confirm_frames)
         if agreed >= needed and chosen.state.lost == 0:
             return TrackStep(LocalizeResult(pose=res.pose, fit=res.fit, mode="acquired"), chosen.state)
         others = [p for i, p in enumerate(poses) if i != decision.index]
         res = self._answer(res, chosen.pose, invalid=True)
         res = LocalizeResult(pose=res.pose, fit=res.fit, mode=res.mode, alternatives=others, status="confirming")
         return TrackStep(res, acquire.Acquiring(prior, hypotheses, agreed, since, decided_pose=chosen.pose,
-                                                decided_t=t_eval if agreed > 1 else t))
+                                                decided_t=t_eval if agreed > 1 else t, unexplained=unexplained))
 
     def _search_hypotheses(self, hits: ProjectedHits,
                            t: float | None) -> tuple[list[tuple[LocalizeResult, acquire.Hypothesis]], FitResult | None,
@@ -250,7 +261,13 @@ class GeometricLocalizer:
         acfg = self.config.acquire
         out: list[tuple[LocalizeResult, acquire.Hypothesis]] = []
         for res, h in sorted(live, key=lambda rh: (rh[1].state.lost, rh[0].fit.cost)):
-            if not any(acquire.same_pose(h.pose, o.pose, acfg) for _, o in out):
+            for k, (kept_res, kept) in enumerate(out):
+                if acquire.same_pose(h.pose, kept.pose, acfg):
+                    if h.origin_t is not None and kept.origin_t is not None and h.origin_t < kept.origin_t:
+                        # One pose tracked since the earlier sighting: that sighting is its evidence.
+                        out[k] = (kept_res, acquire.Hypothesis(kept.state, h.origin, h.origin_t))
+                    break
+            else:
                 out.append((res, h))
         return out
 
@@ -259,7 +276,7 @@ class GeometricLocalizer:
         if prior is None or prior.pose is None:
             return 0
         return min(range(len(hypotheses)), key=lambda i: acquire.prior_distance2(
-            prior, hypotheses[i].pose, t, self.config.acquire))
+            prior, hypotheses[i].origin, hypotheses[i].origin_t, self.config.acquire))
 
     @staticmethod
     def _status(res: LocalizeResult, status: str) -> LocalizeResult:

@@ -16,9 +16,9 @@ only ever holds past frames. The rules, explicit:
 - a valid fit that disagrees restarts the state at the fit (the fit is the evidence; a filter that is
   wrong would otherwise never let go); a trackable but invalid one that disagrees is ignored;
 - a frame without a usable fit answers the prediction (invalid) and counts as lost; after
-  `max_lost_frames` lost frames in a row, or a gap over `max_gap_s`, the next frame is a global search
-  again, and the lost state's pose only picks the symmetry twin (a global search near the centre
-  cannot tell the twins apart by position).
+  `max_lost_frames` lost frames in a row, a gap over `max_gap_s`, or once the state's position std
+  passes `max_track_std_m`, the track is dropped and the caller acquires again with the lost state's
+  pose as a prior (acquire.py).
 The velocity decays with `velocity_tau_s` in the prediction: a robot that stops while the view is
 degenerate must not be extrapolated on along the free direction.
 """
@@ -164,6 +164,9 @@ def coast(state: MotionState, cfg: MotionConfig) -> MotionState:
 
 
 def is_lost(state: MotionState, t: float | None, cfg: MotionConfig) -> bool:
-    """Too many frames without a usable fit, or too long a gap: the position prior is no longer trusted
-    (the caller searches the court; the state's pose still tells the symmetry twins apart)."""
-    return state.lost >= cfg.max_lost_frames or elapsed(state, t, cfg) > cfg.max_gap_s
+    """Too many frames without a usable fit, too long a gap, or a position known worse than
+    `max_track_std_m` (degenerate views ridden too long: parallel lines 1.85 m apart let such a track snap
+    to the wrong one, and the next valid fit near it would be fused as if the track were right): the
+    caller acquires again, the state's pose as a prior (acquire.py)."""
+    return (state.lost >= cfg.max_lost_frames or elapsed(state, t, cfg) > cfg.max_gap_s
+            or state.position_std_m > cfg.max_track_std_m)

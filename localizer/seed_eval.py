@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from courtloc.localizer import band_bias
+from courtloc.localizer import acquire, band_bias
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.geometric import GeometricLocalizer
@@ -195,10 +195,15 @@ def frame_time(filename: str) -> float | None:
 def run_sequence(localizer: GeometricLocalizer, projector: FloorProjector, frames: SeedFrames,
                  indices: np.ndarray, tracking: bool = True) -> dict:
     """Localise frames in order. With tracking, as the robot would: the motion filter's state passes
-    from frame to frame (GeometricLocalizer.track; its rules drop a lost track). Without: every frame
+    from frame to frame (GeometricLocalizer.track; its rules drop a lost track), starting from the first
+    frame's labelled pose as the configured start (0.5 m, 20 degrees: what a team knows of where it puts the
+    robot; without one, the court's point symmetry leaves every frame ambiguous). Without: every frame
     is a cold start (global search)."""
     poses, valid, modes, ms = [], [], [], []
     state = None
+    if tracking and len(indices):
+        state = acquire.Acquiring(prior=acquire.Prior(source="start", pose=frames.truth[indices[0]].copy(),
+                                                      std_m=0.5, yaw_std_rad=math.radians(20.0)))
     for i in indices:
         h = frames.hits[i]
         t0 = time.perf_counter()

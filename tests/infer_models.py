@@ -31,16 +31,16 @@ WIDTH, HEIGHT, CROP_TOP = 640, 480, 200
 class TwinFrames:
     """Radial-scan hits of rendered twin frames, one per pose, made once."""
 
-    def __init__(self, poses: list[tuple[float, float, float]]) -> None:
+    def __init__(self, poses: list[tuple[float, float, float]], court: str = COURT, camera: str = CAMERA) -> None:
         from courtloc.services.preprocess.config import PreprocessConfig
         from courtloc.services.preprocess.pipeline import Preprocessor
         from courtloc.sim.camera import load_camera
         from courtloc.sim.court import load_court
         from courtloc.sim.render import Renderer
 
-        camera = load_camera(CAMERA)
-        assert (camera.width, camera.height) == (WIDTH, HEIGHT)
-        renderer = Renderer(load_court(COURT), camera)
+        camera_model = load_camera(camera)
+        assert (camera_model.width, camera_model.height) == (WIDTH, HEIGHT)
+        renderer = Renderer(load_court(court), camera_model)
         preprocessor = Preprocessor(PreprocessConfig(frame_width=WIDTH, frame_height=HEIGHT))
         self.poses = list(poses)
         self.hits = [preprocessor.process(renderer.render(pose)) for pose in self.poses]

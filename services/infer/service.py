@@ -12,7 +12,7 @@ import numpy as np
 import zenoh
 
 from courtloc.common import codec
-from courtloc.common.control import ModelReply, ModelRequest
+from courtloc.common.control import ModelReply, ModelRequest, PoseReply, SetPose
 from courtloc.common.inbox import Delivery
 from courtloc.common.messages import Edges, Pose
 from courtloc.common.bus import ZenohConfig
@@ -24,6 +24,7 @@ from courtloc.services.infer.resume import ResumeFile
 from courtloc.services.infer.engine import LoadedModel, ModelRefused, deployment_mismatch, is_on_court, load_model
 from courtloc.services.infer.golden import GoldenSets
 from courtloc.services.infer.model_control import ModelControl
+from courtloc.services.infer.pose_control import PoseControl
 from courtloc.services.infer.shadow import ShadowRunner
 from courtloc.services.infer.store import ModelRef, ModelStore, StoredModel
 from courtloc.services.infer.tracking import Tracker
@@ -86,6 +87,7 @@ class InferService(Service):
         self._control_thread: threading.Thread | None = None
         self._queries: queue.Queue[zenoh.Query] = queue.Queue(maxsize=64)
         self._queryable = None
+        self._pose_control: PoseControl | None = None
 
     # ---- start-up ----------------------------------------------------------------------
     def on_start(self) -> None:
@@ -103,6 +105,7 @@ class InferService(Service):
         self._queryable = self.session.declare_queryable(control.key(self.robot_id), self._enqueue_query)
         self._control_thread = threading.Thread(target=self._serve_control, name="infer-control", daemon=True)
         self._control_thread.start()
+        self._pose_control = PoseControl(self.session, self.robot_id, self.set_pose, self.reject, self.stop_event)
 
     def _prepare_golden(self, model: LoadedModel) -> None:
         """Render the golden inputs of the serving model's court now, before frames flow: rendering them at
@@ -249,6 +252,17 @@ class InferService(Service):
         except zenoh.ZError as exc:
             self.record_error("control", f"cannot answer model request: {exc}")
 
+    def set_pose(self, request: SetPose) -> PoseReply:
+        """The pit's pose: the next frame acquires with it as the evidence (control thread; the worker applies it)."""
+        model = self.active
+        if model is not None and not is_on_court(model.court, request.x, request.y, 0.0):
+            return PoseReply(ok=False, reason=f"({request.x:.2f}, {request.y:.2f}) is not on court {model.manifest.court!r}")
+        self.tracker.request_prior(Prior(source="pit", pose=np.array([request.x, request.y, request.yaw]),
+                                         std_m=request.std_m, yaw_std_rad=request.yaw_std_rad))
+        self.log.info("pose set by the pit: (%.2f, %.2f, %.1f deg) +- %.2f m", request.x, request.y,
+                      math.degrees(request.yaw), request.std_m)
+        return PoseReply(ok=True, reason="pose set; the localizer confirms it against the view")
+
     # ModelHost, for ModelControl
     def validate(self, stored: StoredModel, pushed: bool = False) -> LoadedModel:
         return load_model(stored, self.config, golden=self.golden, pushed=pushed)
@@ -282,6 +296,8 @@ class InferService(Service):
         return ModelReply(ok=True, name=stats.name, version=stats.version, shadow=stats)
 
     def on_stop(self) -> None:
+        if self._pose_control is not None:
+            self._pose_control.close()
         if self._control_thread is not None:
             self._control_thread.join(timeout=5.0)
         if self._queryable is not None:

@@ -30,6 +30,8 @@ class Tracker:
     motion: object | None = None
     # A prior stamped on the wall clock (a pose saved before a restart): aged at the first frame that uses it.
     _pending_wall_ns: int | None = field(default=None, repr=False)
+    # A prior another thread asked for (the pit's pose): applied by the worker at its next frame.
+    _requested: acquire.Prior | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.motion is None and self.start is not None:
@@ -59,8 +61,15 @@ class Tracker:
         self.motion = acquire.Acquiring(prior=prior)
         self._pending_wall_ns = wall_ns
 
+    def request_prior(self, prior: acquire.Prior) -> None:
+        """From another thread: acquire with this prior from the next frame on (one reference assignment)."""
+        self._requested = prior
+
     def state_for(self, capture_wall_ns: int) -> object | None:
         """The state to hand the model with a frame captured at `capture_wall_ns`."""
+        requested, self._requested = self._requested, None
+        if requested is not None:
+            self.set_prior(requested)
         if self._pending_wall_ns is not None and isinstance(self.motion, acquire.Acquiring) \
                 and self.motion.prior is not None:
             age = max(0.0, (capture_wall_ns - self._pending_wall_ns) * 1e-9)

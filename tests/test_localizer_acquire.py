@@ -1,0 +1,135 @@
+"""Acquisition's rule (localizer/acquire.py): which evidence decides between hypotheses, and that a track
+never starts on a guess. Synthetic hypotheses for the rule; a few rendered twin frames for the localizer."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from courtloc.localizer import acquire, motion
+from courtloc.localizer.config import AcquireConfig, LocalizerConfig, MotionConfig
+from courtloc.localizer.symmetry import mirror
+
+CFG = AcquireConfig()
+POSE = np.array([-1.0, -2.0, 0.5])  # the -x half; its mirror twin is (1, 2, 0.5 + pi)
+
+
+def _hyp(pose, t: float = 0.0) -> acquire.Hypothesis:  # noqa: ANN001
+    pose = np.asarray(pose, float)
+    return acquire.Hypothesis(motion.start(pose, None, t, MotionConfig()), pose, t)
+
+
+def _decide(poses, prior, t=0.0, half=None) -> acquire.Decision:  # noqa: ANN001
+    """Hypotheses first seen at time t."""
+    return acquire.decide([_hyp(p, t) for p in poses], prior, half, t, CFG, 0.3)
+
+
+def test_without_evidence_twins_stay_undecided_and_a_lone_hypothesis_is_decided() -> None:
+    assert _decide([POSE, mirror(POSE)], None).index is None
+    assert _decide([POSE], None).index == 0  # a court that is not symmetric can leave one
+
+
+@pytest.mark.parametrize("half, index", [("-x", 0), ("+x", 1)])
+def test_a_start_half_picks_the_twin_in_it(half: str, index: int) -> None:
+    assert _decide([POSE, mirror(POSE)], acquire.Prior("start", half=half)).index == index
+
+
+def test_the_half_cannot_tell_near_the_centre_line() -> None:
+    near = np.array([0.1, 1.0, 0.4])
+    assert _decide([near, mirror(near)], acquire.Prior("start", half="+x")).index is None
+
+
+def test_a_pose_prior_decides_by_likelihood_and_its_spread_grows_with_age() -> None:
+    prior = acquire.Prior("track", pose=POSE + [0.3, 0.0, 0.0], std_m=0.1, yaw_std_rad=0.05, t=0.0)
+    decision = _decide([mirror(POSE), POSE], prior, t=0.5)
+    assert decision.index == 1 and decision.explained and decision.tight
+    # Ten seconds later the robot could be anywhere within metres, heading unknown: the twins 4.5 m apart tie.
+    assert _decide([mirror(POSE), POSE], prior, t=10.0).index is None
+
+
+def test_a_track_prior_that_explains_no_hypothesis_is_not_evidence() -> None:
+    far = acquire.Prior("track", pose=np.array([6.0, 3.0, 2.0]), std_m=0.05, yaw_std_rad=0.02, t=0.0)
+    decision = _decide([POSE, mirror(POSE)], far, t=0.2)
+    assert decision.index is None and not decision.explained
+
+
+def test_a_hypothesis_keeps_the_evidence_of_where_it_was_first_seen() -> None:
+    prior = acquire.Prior("track", pose=POSE, std_m=0.1, yaw_std_rad=0.05, t=0.0)
+    # Both seen 0.2 s after the prior; judged now, 10 s later, by where they were then.
+    moved = [_hyp(POSE + [2.0, 1.0, 0.5], 0.2), _hyp(mirror(POSE + [2.0, 1.0, 0.5]), 0.2)]
+    moved = [acquire.Hypothesis(h.state, o, 0.2) for h, o in zip(moved, (POSE + [0.1, 0, 0], mirror(POSE)))]
+    assert acquire.decide(moved, prior, None, 10.0, CFG, 0.3).index == 0
+
+
+def test_the_prior_time_is_set_by_the_first_frame_less_its_age() -> None:
+    prior = acquire.Prior("track", pose=POSE, age_s=2.0)
+    assert prior.at(5.0).t == pytest.approx(3.0) and prior.at(5.0).at(9.0).t == pytest.approx(3.0)
+
+
+def test_a_mirrored_state_is_the_twin() -> None:
+    state = motion.start(POSE, np.diag([0.01, 0.04, 0.001]), 0.0, MotionConfig())
+    state = motion.MotionState(mean=np.r_[POSE, 0.5, -0.2, 0.1], cov=state.cov, t=0.0)
+    twin = motion.mirrored(state)
+    assert np.allclose(twin.pose, mirror(POSE)) and np.allclose(twin.mean[3:], [-0.5, 0.2, 0.1])
+    assert np.allclose(np.diag(twin.cov), np.diag(state.cov))
+    assert np.allclose(motion.mirrored(twin).mean, state.mean)
+
+
+@pytest.fixture(scope="module")
+def drive():  # noqa: ANN201
+    """A short drive in the -x half, rendered on the seed twin, and a localizer for it."""
+    from courtloc.localizer.geometric import GeometricLocalizer
+    from courtloc.localizer.projection import FloorProjector
+    from courtloc.sim.camera import load_camera
+    from courtloc.sim.court import load_court
+    from courtloc.sim.edges import scan_hits
+    from courtloc.sim.render import Renderer
+
+    court, camera = load_court("seed-gazebo"), load_camera("seed-gazebo")
+    loc = GeometricLocalizer(court, camera, LocalizerConfig())
+    renderer = Renderer(court, camera)
+    projector = FloorProjector(camera, loc.config.edge_offset_px, loc.config.max_range_m)
+    truth = [POSE + [0.03 * k, 0.02 * k, 0.0] for k in range(6)]
+    frames = []
+    for pose in truth:
+        hits = scan_hits(renderer.render(tuple(pose)))
+        frames.append(projector.project(hits[:, 0], hits[:, 1]))
+    return loc, frames, truth
+
+
+def _run(loc, frames, state):  # noqa: ANN001, ANN202
+    out = []
+    for k, frame in enumerate(frames):
+        step = loc.track(frame, state, k / 30)
+        state = step.state
+        out.append(step.result)
+    return out
+
+
+def test_the_localizer_is_ambiguous_without_evidence(drive) -> None:  # noqa: ANN001
+    loc, frames, truth = drive
+    assert loc.symmetric
+    results = _run(loc, frames, None)
+    assert not any(r.valid for r in results)
+    assert all(r.status == "ambiguous" for r in results)
+    last = results[-1]
+    assert any(math.hypot(*(p[:2] - truth[-1][:2])) < 0.1 for p in [last.pose, *last.alternatives])
+
+
+@pytest.mark.parametrize("prior", [acquire.Prior("start", half="-x"),
+                                   acquire.Prior("start", pose=POSE, std_m=0.5, yaw_std_rad=0.35)])
+def test_start_evidence_gives_the_right_twin_after_confirmation(drive, prior) -> None:  # noqa: ANN001
+    loc, frames, truth = drive
+    results = _run(loc, frames, acquire.Acquiring(prior=prior))
+    needed = loc.config.acquire.confirm_frames_tight if prior.pose is not None else loc.config.acquire.confirm_frames
+    assert [r.valid for r in results[:needed]] == [False] * (needed - 1) + [True]
+    assert all(r.valid for r in results[needed:])
+    assert all(math.hypot(*(r.pose[:2] - p[:2])) < 0.1 for r, p in zip(results[needed - 1:], truth[needed - 1:]))
+
+
+def test_start_evidence_for_the_wrong_place_confirms_nothing(drive) -> None:  # noqa: ANN001
+    loc, frames, _ = drive
+    results = _run(loc, frames, acquire.Acquiring(prior=acquire.Prior("start", pose=np.array([1.0, -3.0, 2.0]),
+                                                                      std_m=0.3, yaw_std_rad=0.2)))
+    assert not any(r.valid for r in results)
