@@ -61,6 +61,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--infer", action="append", default=[], metavar="FIELD=VALUE",
                         help="set an [infer] field for every scenario (VALUE is JSON, or a plain string)")
     parser.add_argument("--logs", type=Path, default=None, help="keep the stages' logs here (default: discarded)")
+    parser.add_argument("--markdown", type=Path, default=None,
+                        help="also write the README's table rows for this run here (header included)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -79,18 +81,43 @@ def run(args: argparse.Namespace) -> int:
     except (BenchError, ValueError, OSError) as exc:
         if args.verbose:
             raise
-        print(f"courtloc bench twin: {exc}", file=sys.stderr)
+        # One line, even for a multi-line reason (a config error lists its fields on their own lines).
+        print(f"courtloc bench twin: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
     report["run"] = {"court": args.court, "camera": args.camera, "seconds": args.seconds, "fps": args.fps,
-                     "seed": args.seed, "tell_start": args.tell_start, "scenarios": names, "load_avg": list(os.getloadavg()),
-                     "cpus": os.cpu_count(), "command": " ".join(["courtloc", *sys.argv[1:]])}
+                     "seed": args.seed, "tell_start": args.tell_start, "scenarios": names,
+                     "load_avg": list(os.getloadavg()), "cpus": os.cpu_count(),
+                     "command": " ".join(["courtloc", *sys.argv[1:]])}
     text = json.dumps(report, indent=1)
+    if args.markdown is not None:
+        args.markdown.write_text(markdown_table(report) + "\n")
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(text + "\n")
     else:
         print(text)
     return 0
+
+
+def markdown_table(report: dict[str, Any]) -> str:
+    """The README's table ("On the twin") for one run: one row per scenario."""
+    def num(value: float | None, fmt: str, scale: float = 1.0) -> str:
+        return "-" if value is None else fmt.format(value * scale)
+
+    lines = ["| court | scenario | n | mean / median / p95 err (all) m | yaw median deg | valid | "
+             "valid mean / p95 m | valid_wrong | recovery mean / max s |", "|---|---|---|---|---|---|---|---|---|"]
+    court = report["run"]["court"]
+    for name in report["run"]["scenarios"]:
+        r = report[name]
+        notes = "".join([f" ({r['events_unrecovered']} unrecovered)" if r["events_unrecovered"] else "",
+                         f", {r['recovery_wrong']} first valid wrong" if r["recovery_wrong"] else ""])
+        lines.append(
+            f"| {court} | {name} | {r['n']} | {num(r['mean_err_m'], '{:.2f}')} / {num(r['median_err_m'], '{:.3f}')} / "
+            f"{num(r['p95_err_m'], '{:.2f}')} | {num(r['yaw_median_deg'], '{:.2f}')} | "
+            f"{num(r['valid_fraction'], '{:.1f}', 100)} % | {num(r['valid_mean_err_m'], '{:.2f}')} / "
+            f"{num(r['valid_p95_err_m'], '{:.2f}')} | {r['valid_wrong']} | {num(r['recovery_s_mean'], '{:.2f}')} / "
+            f"{num(r['recovery_s_max'], '{:.2f}')}{notes} |")
+    return "\n".join(lines)
 
 
 def _parse_fields(items: list[str]) -> dict[str, Any]:
@@ -121,7 +148,8 @@ def _print_row(name: str, r: dict[str, Any]) -> None:
 
 
 # ---- one scenario -----------------------------------------------------------------------------------
-def deployment_for(sc, args: argparse.Namespace, port: int, store: Path, infer_fields: dict[str, Any]):  # noqa: ANN001, ANN201
+def deployment_for(sc, args: argparse.Namespace, port: int, store: Path,  # noqa: ANN001, ANN201
+                   infer_fields: dict[str, Any]):
     """The base deployment's stage settings with the bench's bus, court and scenario camera."""
 
     base = load_deployment(args.config).model_dump(mode="json", exclude_unset=True)
@@ -262,11 +290,7 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any]) -> 
                 if not child.ready.wait(15.0):
                     raise BenchError(f"{child.name} not ready after 15 s (log: {child.log_path})")
             recorder.start(stop)
-            if not recorder.subscribed.wait(30.0) or not recorder.wait_alive(STAGES_BEFORE_CAMERA, 90.0):
-                with recorder._lock:  # noqa: SLF001 - the watcher's own lock guards its state
-                    missing = set(STAGES_BEFORE_CAMERA) - recorder.state.alive
-                raise BenchError(f"scenario {sc.name}: stage(s) {sorted(missing)} not alive after 90 s "
-                                 f"(logs: {log_dir}; keep them with --logs)")
+            _wait_for_stages(sc.name, recorder, [children[n] for n in STAGES_BEFORE_CAMERA], log_dir)
             children["camera"].start(log_dir)
             deadline = time.monotonic() + 60.0 + 6.0 * args.seconds
             while recorder.record.last_seq < frames - 1:
@@ -295,6 +319,8 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any]) -> 
     last = max((t.capture_ns for t in truths), default=0)
     for row in result["recoveries"]:
         row["t_s"] = round((row.pop("start_ns") - first) / 1e9, 3)
+    for row in result["wrong_runs"]:
+        row["t_s"] = [round((row.pop("start_ns") - first) / 1e9, 3), round((row.pop("end_ns") - first) / 1e9, 3)]
     # Sim time is frames / fps: a camera that cannot render at fps plays the robot in slow motion.
     camera_fps = (len(truths) - 1) / ((last - first) / 1e9) if last > first else None
     result.update(description=sc.description, frames=len(truths), camera_fps=camera_fps,
@@ -302,6 +328,34 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any]) -> 
                   stale_or_dropped={name: {"dropped": s["dropped"], "stale": s["stale"]}
                                     for name, s in summary["stages"].items()})
     return result
+
+
+def _wait_for_stages(name: str, recorder, stages: list, log_dir: Path,  # noqa: ANN001
+                     timeout_s: float = 90.0) -> None:
+    """Until every stage is alive on the bus; a stage process that exits meanwhile fails the scenario at
+    once with the last line of its log (a refused model, a bad setting)."""
+    deadline = time.monotonic() + timeout_s
+    if not recorder.subscribed.wait(timeout_s):
+        raise BenchError(f"scenario {name}: the bench's bus client did not connect to the router in {timeout_s:.0f} s")
+    names = tuple(child.name for child in stages)
+    while not recorder.wait_alive(names, 1.0):  # woken by liveliness; each second, also look for a dead stage
+        for child in stages:
+            if not child.alive():
+                raise BenchError(f"scenario {name}: {child.name} exited (code {child.process.returncode}): "
+                                 f"{_last_line(child.log_path)}")
+        if time.monotonic() > deadline:
+            with recorder._lock:  # noqa: SLF001 - the watcher's own lock guards its state
+                missing = set(names) - recorder.state.alive
+            raise BenchError(f"scenario {name}: stage(s) {sorted(missing)} not alive after {timeout_s:.0f} s "
+                             f"(logs: {log_dir}; keep them with --logs)")
+
+
+def _last_line(path: Path | None) -> str:
+    try:
+        lines = [line for line in path.read_text(errors="replace").splitlines() if line.strip()] if path else []
+    except OSError:
+        lines = []
+    return lines[-1].strip() if lines else "(no output)"
 
 
 def scenario_events(sc, truths: list, poses: list, fps: float, kill_ns: int | None) -> list:  # noqa: ANN001

@@ -11,6 +11,9 @@ Every pose is matched to the camera's ground truth of the same frame by the head
   valid pose captured at or after it. An event not recovered before the next event (or the end of the
   run) counts with the time it had, as a lower bound, and is counted in `events_unrecovered`. Whether that
   first valid pose was wrong is kept per event and counted in `recovery_wrong`.
+- wrong_runs: the valid-and-wrong poses grouped into runs of consecutive poses (in capture order), the
+  first `MAX_RUNS`: where a run starts and ends, how many poses, the worst error and the median yaw error
+  (a run ~180 degrees off is the point-symmetric twin).
 """
 from __future__ import annotations
 
@@ -21,6 +24,8 @@ from typing import Any
 import numpy as np
 
 from courtloc.lab.metrics import WRONG_M, wrap_angle  # one "valid and wrong" threshold for eval and bench
+
+MAX_RUNS = 20
 
 
 @dataclass(frozen=True)
@@ -82,6 +87,22 @@ def _recoveries(events: list[Event], matched: list[tuple[PoseSample, float]], en
     return out
 
 
+def _wrong_runs(matched: list[tuple[PoseSample, float, float | None]], wrong_m: float) -> list[dict[str, Any]]:
+    runs: list[dict[str, Any]] = []
+    current: list[tuple[PoseSample, float, float | None]] = []
+    for item in sorted(matched, key=lambda m: m[0].capture_ns) + [None]:  # None closes the last run
+        if item is not None and item[0].valid and item[1] > wrong_m:
+            current.append(item)
+            continue
+        if current:
+            yaws = [abs(y) for _, _, y in current if y is not None]
+            runs.append({"start_ns": current[0][0].capture_ns, "end_ns": current[-1][0].capture_ns,
+                         "poses": len(current), "max_err_m": max(e for _, e, _ in current),
+                         "yaw_err_median_deg": float(np.degrees(np.median(yaws))) if yaws else None})
+            current = []
+    return runs[:MAX_RUNS]
+
+
 def twin_metrics(poses: list[PoseSample], truths: list[TruthSample], events: list[Event], end_ns: int,
                  wrong_m: float = WRONG_M) -> dict[str, Any]:
     """The scenario's report (see the module docstring); `end_ns` ends the last recovery window."""
@@ -99,6 +120,7 @@ def twin_metrics(poses: list[PoseSample], truths: list[TruthSample], events: lis
     has_yaw = np.array([y is not None for y in yaw_errs], dtype=bool)
     yaw = np.array([0.0 if y is None else y for y in yaw_errs], dtype=np.float64)
     recoveries = _recoveries(events, matched, end_ns, wrong_m)
+    runs = _wrong_runs([(p, e, y) for (p, e), y in zip(matched, yaw_errs)], wrong_m)
     times = np.array([r["recovery_s"] for r in recoveries], dtype=np.float64)
     reasons: dict[str, int] = {}
     for pose, _ in matched:
@@ -119,6 +141,7 @@ def twin_metrics(poses: list[PoseSample], truths: list[TruthSample], events: lis
         "events_unrecovered": sum(not r["recovered"] for r in recoveries),
         "recovery_wrong": sum(bool(r["first_valid_wrong"]) for r in recoveries),
         "recoveries": recoveries,
+        "wrong_runs": runs,
         "invalid_reasons": reasons,
         "unmatched_poses": len(poses) - len(matched),
     }

@@ -151,8 +151,8 @@ class Dataset:
         if self.synth_meta is not None:
             synth_kind = _SYNTH_KINDS[self.synth_meta["kind"]]
             if kind is not None and kind != synth_kind:
-                raise DatasetError(f"{self.root} is a 'dataset synth --kind {self.synth_meta['kind']}' folder: its images "
-                                   f"are {synth_kind}, not {kind} (leave out --kind)")
+                raise DatasetError(f"{self.root} is a 'dataset synth --kind {self.synth_meta['kind']}' folder: "
+                                   f"its images are {synth_kind}, not {kind} (leave out --kind)")
             kind = synth_kind
         kind = kind or "dots"
         if kind not in ("dots", "raw"):

@@ -146,7 +146,8 @@ class HitsPredictorModel:
         return FramePrediction(float(pose.x), float(pose.y), yaw, valid=bool(pose.valid) and finite)
 
 
-def open_model(path: Path | None, threads: int = 1, tracking: bool = True, start: StartHint | None = None) -> FrameModel:
+def open_model(path: Path | None, threads: int = 1, tracking: bool = True,
+               start: StartHint | None = None) -> FrameModel:
     """An ONNX file of the paper network, or a model folder for the runtime predictor (default models/default)."""
     path = Path(path) if path is not None else default_model_path()
     if path.is_file() and path.suffix == ".onnx":

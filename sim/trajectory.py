@@ -185,7 +185,8 @@ class KidnapTrajectory:
             for _ in range(1000):
                 x = float(rng.uniform(min_abs_x_m, hx - margin))
                 side = (1.0 if before[0] >= 0 else -1.0) if same_half else float(rng.choice([-1.0, 1.0]))
-                target = (side * x, float(rng.uniform(-hy + margin, hy - margin)), float(rng.uniform(-math.pi, math.pi)))
+                target = (side * x, float(rng.uniform(-hy + margin, hy - margin)),
+                          float(rng.uniform(-math.pi, math.pi)))
                 if math.hypot(target[0] - before[0], target[1] - before[1]) >= min_jump_m:
                     break
             else:  # pragma: no cover - a court this small has no room to jump

@@ -120,7 +120,8 @@ def test_every_scenario_builds_for_both_courts(name: str):
 def test_bench_twin_runs_the_chain_and_writes_every_key(tmp_path: Path):
     out = tmp_path / "twin.json"
     result = subprocess.run([sys.executable, "-m", "courtloc", "bench", "twin", "--court", "seed-gazebo",
-                             "--scenario", "clean", "--seconds", "2", "--json", str(out)],
+                             "--scenario", "clean", "--seconds", "2", "--json", str(out),
+                             "--markdown", str(tmp_path / "table.md")],
                             capture_output=True, text=True, timeout=240)
     assert result.returncode == 0, result.stderr[-3000:]
     report = json.loads(out.read_text())
@@ -132,6 +133,10 @@ def test_bench_twin_runs_the_chain_and_writes_every_key(tmp_path: Path):
     assert math.isfinite(clean["mean_err_m"]) and clean["valid_n"] == round(clean["valid_fraction"] * clean["n"])
     assert clean["events"] == 1 and clean["recoveries"][0]["kind"] == "start"
     assert report["run"]["court"] == "seed-gazebo" and report["run"]["scenarios"] == ["clean"]
+    header, rule, row = (tmp_path / "table.md").read_text().strip().splitlines()
+    assert header.count("|") == rule.count("|") == row.count("|")
+    assert row.startswith(f"| seed-gazebo | clean | {clean['n']} | {clean['mean_err_m']:.2f} / ")
+    assert f"| {clean['valid_wrong']} |" in row
 
 
 def test_bench_twin_refuses_an_unknown_scenario_in_one_line():
@@ -165,3 +170,27 @@ def test_the_infer_stage_is_told_the_scenarios_start(tmp_path: Path):
     # `courtloc up` with a sim random walk that starts elsewhere than the centre: the start it derives.
     derived = sim_start(sc.sim)
     assert derived is not None and (derived.x, derived.y) == (-3.0, 1.0)
+
+
+def test_valid_wrong_poses_are_grouped_into_runs():
+    truths = _truths(12)
+    # Frames 2-4 valid and 1 m off with yaw pi off (the twin), 5 invalid, 7 valid and 0.8 m off, rest right.
+    poses = [_pose(k, 1.0 if k in (2, 3, 4, 5) else 0.8 if k == 7 else 0.0, valid=k != 5,
+                   dyaw=math.pi if k in (2, 3, 4) else 0.0) for k in range(12)]
+    runs = twin_metrics(poses, truths, [], end_ns=10**10)["wrong_runs"]
+    assert [(r["start_ns"], r["end_ns"], r["poses"]) for r in runs] == [(200 * MS, 400 * MS, 3), (700 * MS, 700 * MS, 1)]
+    assert runs[0]["max_err_m"] == pytest.approx(1.0) and runs[0]["yaw_err_median_deg"] == pytest.approx(180.0)
+    assert runs[1]["max_err_m"] == pytest.approx(0.8) and runs[1]["yaw_err_median_deg"] == pytest.approx(0.0)
+
+
+def test_a_stage_that_cannot_start_fails_the_bench_at_once_in_one_line(tmp_path: Path):
+    not_a_dir = tmp_path / "file"
+    not_a_dir.write_text("")
+    result = subprocess.run([sys.executable, "-m", "courtloc", "bench", "twin", "--scenario", "clean", "--seconds", "1",
+                             "--store", str(not_a_dir / "store")], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 1
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "infer exited" in lines[0] and "Not a directory" in lines[0]
+    bad = subprocess.run([sys.executable, "-m", "courtloc", "bench", "twin", "--scenario", "clean", "--seconds", "1",
+                          "--infer", "threads=0"], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 1 and bad.stderr.strip().count("\n") == 0 and "infer.threads" in bad.stderr

@@ -108,6 +108,8 @@ def test_eval_cli_on_synth_output_warns_of_the_court_and_writes_both_kinds_of_ke
     assert len(warnings) == 1 and "'robocon2025'" in warnings[0] and "'seed-gazebo'" in warnings[0]
     same = courtloc("eval", "--data", str(synth_sets["seed"]), "--no-progress", "--start-side=-x")
     assert same.returncode == 0 and "warning" not in same.stderr
+    told = courtloc("eval", "--data", str(synth_sets["seed"]), "--no-progress", "--data-court", "robocon2025")
+    assert told.returncode == 0 and told.stderr.count("warning") == 1 and "'robocon2025'" in told.stderr
 
 
 @pytest.mark.parametrize("args, reason", [

@@ -37,9 +37,10 @@ def test_kidnap_teleports_within_the_half_and_is_reproducible():
         KidnapTrajectory(RandomWalkTrajectory(court, 1.5, 1.5, seed=1), court, [3.0, 2.0], 1.5, 1.5, seed=1)
 
 
-def test_source_outage_frames_show_nothing_while_the_robot_moves_on():
+@pytest.mark.parametrize("kind", ["dark", "blocked"])
+def test_source_outage_frames_show_nothing_while_the_robot_moves_on(kind: str):
     cfg = SimSourceConfig(court="seed-gazebo", trajectory="random_walk", seed=2, fps=10, start=[2.0, 1.0, 0.5],
-                          outages_s=[(0.2, 0.4)])
+                          outages_s=[(0.2, 0.4)], outage=kind)
     from courtloc.sim.edges import scan_hits
 
     with SimSource(cfg) as source:
@@ -48,7 +49,8 @@ def test_source_outage_frames_show_nothing_while_the_robot_moves_on():
     for k, (frame, pose) in enumerate(shots):
         hits = scan_hits(frame)
         if k in (2, 3):
-            assert frame.max() < 60 and len(hits) == 0  # dark: no line edge to find
+            assert len(hits) == 0  # no line edge to find
+            assert (frame.max() < 60) == (kind == "dark")
         else:
             assert len(hits) > 20
     assert shots[3][1] != shots[2][1]  # the truth keeps moving through the outage
