@@ -43,6 +43,8 @@ class OneLineParser(argparse.ArgumentParser):
     """argparse's errors as one line (the usage is one `--help` away); sub-parsers inherit the class."""
 
     def error(self, message: str) -> NoReturn:
+        if "expected one argument" in message:  # argparse reads a negative number as an option
+            message += " (a value starting with '-' goes after '=', e.g. --start-side=-x)"
         self.exit(USAGE_EXIT, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
 

@@ -18,6 +18,7 @@ from courtloc.sim.render import Renderer
 
 # Poses spread over both halves of the court, each facing enough lines for a valid fix (x, y, yaw); every
 # court we ship contains them.
+MIN_GOLDEN_FRAMES = 3  # the infer stage's default golden_min_frames
 GOLDEN_POSES: tuple[tuple[float, float, float], ...] = (
     (-2.5, 1.0, 3.0), (2.0, -1.5, 0.4), (3.5, 1.8, -0.3), (-1.0, -2.0, 2.4), (1.0, 2.0, -1.2), (0.5, -0.5, 0.0),
 )
@@ -41,14 +42,25 @@ def write_golden(path: Path, frames: list[GoldenFrame], max_position_error_m: fl
 
 def breaches(run: GoldenRun, spec: GoldenSpec) -> list[str]:
     """Why `run` does not meet the accuracy `spec` states, one line per frame; empty when it does."""
+    return [problem for i in range(len(run.position_error_m)) for problem in breaches_of(run, spec, i)]
+
+
+def informative_frames(model_path: Path, frames: list[GoldenFrame], spec: GoldenSpec) -> list[int]:
+    """Indices of the frames the built model answers within the accuracy `spec` states (valid, on the pose)."""
+    run = run_golden(load_predictor(model_path), frames)
+    return [i for i in range(len(frames)) if not breaches_of(run, spec, i)]
+
+
+def breaches_of(run: GoldenRun, spec: GoldenSpec, i: int) -> list[str]:
+    """Why frame `i` of `run` misses the accuracy `spec` states; empty when it meets it."""
+    error, yaw_error, valid = run.position_error_m[i], run.yaw_error_deg[i], run.valid[i]
     problems = []
-    for i, (error, yaw_error, valid) in enumerate(zip(run.position_error_m, run.yaw_error_deg, run.valid)):
-        if not valid:
-            problems.append(f"frame {i}: not valid")
-        if not math.isfinite(error) or error > spec.max_position_error_m:
-            problems.append(f"frame {i}: position error {error:.3f} m > {spec.max_position_error_m} m")
-        if spec.max_yaw_error_deg is not None and yaw_error is not None and yaw_error > spec.max_yaw_error_deg:
-            problems.append(f"frame {i}: yaw error {yaw_error:.2f} deg > {spec.max_yaw_error_deg} deg")
+    if not valid:
+        problems.append(f"frame {i}: not valid")
+    if not math.isfinite(error) or error > spec.max_position_error_m:
+        problems.append(f"frame {i}: position error {error:.3f} m > {spec.max_position_error_m} m")
+    if spec.max_yaw_error_deg is not None and yaw_error is not None and yaw_error > spec.max_yaw_error_deg:
+        problems.append(f"frame {i}: yaw error {yaw_error:.2f} deg > {spec.max_yaw_error_deg} deg")
     return problems
 
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import onnx
 
-from courtloc.lab.golden_build import check_built, render_golden, write_golden
+from courtloc.lab.golden_build import MIN_GOLDEN_FRAMES, check_built, informative_frames, render_golden, write_golden
 from courtloc.lab.onnx_graph import INPUT, OUTPUT, build_graph
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.golden import GOLDEN_FILE
@@ -76,6 +76,18 @@ def build_package(out_dir: Path, court: Court, camera: CameraModel, config: Loca
     )
     final = attach_manifest(model, manifest)
     onnx.save(model, str(out_dir / MODEL_FILE))
+    # A golden pose this camera sees only as a degenerate view (a low or steep camera facing parallel lines)
+    # says nothing about the package: it is left out, as long as enough informative views remain.
+    kept = informative_frames(out_dir / MODEL_FILE, frames, golden)
+    if len(kept) < len(frames):
+        dropped = [frames[i].pose for i in range(len(frames)) if i not in kept]
+        if len(kept) < MIN_GOLDEN_FRAMES:
+            check_built(out_dir / MODEL_FILE, frames, golden)  # raises, naming every frame it misses
+        log.info("golden poses %s give this camera no informative view: left out", dropped)
+        frames = [frames[i] for i in kept]
+        golden = write_golden(out_dir / GOLDEN_FILE, frames, golden_position_m, golden_yaw_deg)
+        final = attach_manifest(model, final.model_copy(update={"golden": golden}))
+        onnx.save(model, str(out_dir / MODEL_FILE))
     run = check_built(out_dir / MODEL_FILE, frames, golden)
     log.info("wrote localizer package %s (%s / %s); golden position error max %.4f m, yaw max %.3f deg",
              out_dir, court.name, camera.name, max(run.position_error_m), run.max_yaw_error_deg() or 0.0)

@@ -365,6 +365,14 @@ class OdometryFusion:
         self.counts["valid_on_odometry"] += 1
         return True, ""
 
+    def note_acquired(self, state: motion.MotionState, t: Optional[float], n_hits: int) -> None:
+        """The localizer decided its pose by acquisition: a vision fix on its own evidence, which ends any
+        suspicion odometry had (acquisition never decides a pose the view and its prior do not support)."""
+        self.suspect = False
+        self.search_pending = False
+        self._agreeing = 0
+        self.after_frame(True, True, state, t, n_hits)
+
     def note_vision(self, before: Optional[motion.MotionState], after: Optional[motion.MotionState], n_hits: int,
                     fused: bool) -> None:
         """Suspect a kidnap when vision and odometry disagree: a fix that restarted the track far from the
@@ -434,14 +442,20 @@ def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, w
     """One tracked frame with odometry around it: (Prediction, next state, reason when odometry decided).
 
     Without fusion it is exactly `predictor.track`."""
-    if fusion is None:
-        pred, state = predictor.track(hits, width, height, state, t=t)
-        return pred, state, ""
+    if fusion is None or not isinstance(state, (motion.MotionState, type(None))):
+        # Without fusion, or while the localizer acquires (its state is the evidence between hypotheses,
+        # not a track odometry could move): exactly `predictor.track`.
+        pred, after = predictor.track(hits, width, height, state, t=t)
+        if fusion is not None and pred.valid and isinstance(after, motion.MotionState):
+            fusion.note_acquired(after, t, len(hits))
+        return pred, after, ""
     before = fusion.before_frame(state, t)
     if fusion.search_pending and before is not None:
         before = fusion.search_next(before, predictor.localizer.config.motion)
         fusion.search_pending = False
     pred, after = predictor.track(hits, width, height, before, t=t)
+    if not isinstance(after, (motion.MotionState, type(None))):  # the track was dropped: acquiring again
+        return pred, after, ""
     # lost == 0 after the step: a fit was fused, or a valid one (re)started the track.
     fused_by_vision = after is not None and after.lost == 0
     fusion.note_vision(before, after, len(hits), fused_by_vision)

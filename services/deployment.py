@@ -160,9 +160,9 @@ def stage_main(stage_class: type[Service], argv: Sequence[str] | None = None) ->
         print(exc, file=sys.stderr)
         return 2
     name = stage_class.name
-    # Each stage presents its own certificate and password (the ACL grants per identity).
-    zenoh_config = config.zenoh.model_copy(update={"security": with_identity(config.zenoh.security, name)})
     try:
+        # Each stage presents its own certificate and password (the ACL grants per identity).
+        zenoh_config = config.zenoh.model_copy(update={"security": with_identity(config.zenoh.security, name)})
         stage = stage_class(config.robot_id, zenoh_config, getattr(config, name))  # a bad input file stops it here
         applied = apply_realtime(name, config.realtime)
         if zenoh_config.mode == "client":  # a peer opens without a router; a client waits for one

@@ -45,7 +45,7 @@ class Robot:
 [infer]
 store = "{self.store_dir}"
 # The twin robot stands still between requests (a push pauses the frames for seconds): a robot that waits.
-drift_mps = 0.1
+drift_mps = 0.01
 require_signature = true
 signing_public_key = "{tmp / 'sign.pub'}"
 validation_timeout_s = 20

@@ -128,6 +128,9 @@ providers = ["cpu"]
         # the previous valid one), so it gets the live stage's input sequence from its cold start: the
         # recorded edges that produced a recorded pose (a latest-only stage may have skipped some).
         # --restamp: the edges arrive as live ones, so the freshness check passes as it did live.
+        # The fresh infer starts as the live one did: from the configured start, not from the pose the live
+        # stage saved for a restart (a different prior acquires differently).
+        (tmp_path / "store.last-pose.json").unlink(missing_ok=True)
         consumed = tmp_path / "infer-inputs.mcap"
         series = McapSeries(consumed, Limits(), {})
         for record in recorded:

@@ -35,7 +35,8 @@ def test_train_export_eval_explain(tmp_path: Path, capsys: pytest.CaptureFixture
                  "--recordings", "20240102", "--json", str(metrics_file), "--plots", str(plots),
                  "--no-progress"]) == 0
     metrics = json.loads(metrics_file.read_text())
-    assert set(metrics) == {"n", "mse", "mae_x", "mae_y", "mean_err_m", "median_err_m", "p95_err_m"}
+    assert set(metrics) == {"n", "mse", "mae_x", "mae_y", "mean_err_m", "median_err_m", "p95_err_m",
+                            "valid_fraction", "valid_mean_err_m", "valid_p95_err_m", "valid_wrong"}
     assert metrics["n"] == 16
     summary = json.loads((run / "history.json").read_text())
     assert metrics["mse"] == pytest.approx(summary["metrics"]["val"]["mse"], abs=1e-5)

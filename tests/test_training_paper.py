@@ -84,7 +84,7 @@ def test_sparse_graph_accepts_an_empty_image(trained: tuple[Path, dict]) -> None
 
 def test_resume_continues_exactly(toy: Path, tmp_path: Path) -> None:
     common = dict(data=toy, crop_top=CROP, lr=1e-3, progress=False, seed=7)
-    straight = train(TrainConfig(out=tmp_path / "a", epochs=3, **common))
+    train(TrainConfig(out=tmp_path / "a", epochs=3, **common))
     train(TrainConfig(out=tmp_path / "b", epochs=2, **common))
     resumed = train(TrainConfig(out=tmp_path / "b", epochs=3, resume=True, **common))
     assert [h["epoch"] for h in resumed["history"]] == [1, 2, 3]
