@@ -31,7 +31,7 @@ import msgpack
 import numpy as np
 import zenoh
 
-from courtloc.bench_soak import child_processes
+from courtloc.bench_procstats import child_processes
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.limits import MAX_CHUNK_BYTES

@@ -92,8 +92,6 @@ def measure_relay(seconds: float, warmup_frames: int = 30, mode: str = "client",
                   fps: float = 30.0) -> dict[str, float | int | None]:
     """Router + the relay hops as processes (see courtloc/bench_relay.py); latency at the last hop."""
 
-
-
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]

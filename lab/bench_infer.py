@@ -118,7 +118,6 @@ def _worker_model(args: argparse.Namespace) -> int:
 def _worker_swap(args: argparse.Namespace) -> int:
     """The service's own objects (no bus): a 30 fps frame thread, and an activation on a control thread."""
 
-
     frames, width, height = _load_hits(args.hits)
     with tempfile.TemporaryDirectory() as tmp:
         service = InferService("bench", ZenohConfig(), InferConfig(store=Path(tmp) / "store", threads=args.threads))

@@ -151,7 +151,6 @@ def run(args: argparse.Namespace) -> int:
 def _twin_frames(court_name: str, n: int, rng, height: int, width: int) -> list:  # noqa: ANN001
     """n clean renders of the court's twin at random poses inside its robot area, as (H, W, 3) BGR."""
 
-
     court = load_court(court_name)
     camera = load_camera(court.default_camera)
     if (camera.width, camera.height) != (width, height):

@@ -100,7 +100,6 @@ def load_dot_frames(data_dir: str | Path, csv_path: str | Path, frames: int, lag
                     labels: Optional[PoseLabels] = None) -> DotFrames:
     """Dots of `frames` images spread evenly over the CSV, with lag-corrected poses."""
 
-
     data_dir = Path(data_dir)
     labels = lag_corrected(labels or read_pose_csv(csv_path), lag_s)
     picks = np.unique(np.linspace(0, len(labels) - 1, min(frames, len(labels))).round().astype(int))
@@ -312,7 +311,6 @@ def dot_reproduction(court: Court, camera: CameraModel, data_dir: str | Path, la
 
     The twin frame goes through the real preprocess stage; `labels` should be lag-corrected.
     """
-
 
     renderer = Renderer(court, camera)
     out = []

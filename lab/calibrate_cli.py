@@ -140,7 +140,6 @@ def _mount(args: argparse.Namespace) -> int:
 def _live_frames(args: argparse.Namespace) -> Path:
     """Frames from the robot's running camera stage, saved where `calibrate mount` reads them."""
 
-
     deployment = client_deployment(args)
     folder = args.mount_save or Path(tempfile.mkdtemp(prefix="courtloc-mount-"))
     saved = grab_frames(deployment.robot_id, deployment.zenoh, args.mount_live_n, folder)

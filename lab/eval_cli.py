@@ -96,4 +96,3 @@ def _eval(args: argparse.Namespace) -> int:
         for path in write_plots(result, args.plots, title=model.manifest.name):
             print(f"plot: {path}")
     return 0
-

@@ -259,7 +259,6 @@ def _fit_poses_numpy(field: CourtField, hits: ProjectedHits, starts: np.ndarray,
             for s in range(n_starts)]
 
 
-
 def _pose_stds(hh: np.ndarray) -> list[tuple[float, float, np.ndarray | None]]:
     """(worst-direction position std, yaw std, (3, 3) pose covariance) per (k, k) normal matrix of the
     (S, k, k) stack; the pose block of the inverse is the covariance with tilt marginalised."""

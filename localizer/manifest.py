@@ -38,6 +38,7 @@ PLAIN_NAME_RULE = "a plain name: a letter or digit, then letters, digits, '_', '
 def is_plain_name(name: str) -> bool:
     return re.fullmatch(PLAIN_NAME_PATTERN, name) is not None
 
+
 # 'dense_image': the paper's crop as float32 [1, H, W]; 'sparse_hits': indices + values of its non-zero
 # pixels; 'scan_hits': the radial scan's int16 [K, 4] (row, col, ray, d) hits (geometric localizer).
 # Extend this Literal when a new kind of model input appears.

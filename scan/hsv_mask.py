@@ -48,7 +48,6 @@ class WhiteMask:
         hsv = cv2.cvtColor(bgr_pixels.reshape(1, n, 3), cv2.COLOR_BGR2HSV)
         return _mask_of_hsv(hsv, self._bounds).reshape(n)
 
-
     def bit_table(self) -> np.ndarray:
         """The mask of every colour as 2 MiB of bits: colour (b, g, r) is bit k & 7 of byte k >> 3, k = b<<16 | g<<8 | r.
 

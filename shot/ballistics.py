@@ -133,7 +133,6 @@ def fit(distances_m: Sequence[float], rpms: Sequence[float], base: ShotModel, fi
     1-D search. The release height, ring height, angle and wheel radius stay as given.
     """
 
-
     d = np.asarray(distances_m, dtype=float)
     y = np.asarray(rpms, dtype=float)
     if d.size < 2:

@@ -62,7 +62,6 @@ def _realism(renderer, court, poses, options, seed: int) -> tuple[float, float]:
     10 cm of a white edge of the court (far-away hits span more than 10 cm per pixel, so even a perfect
     twin stays below 1)."""
 
-
     tree = cKDTree(court.white_edges(0.01)[0])
     counts, fractions = [], []
     for k, pose in enumerate(poses):

@@ -84,7 +84,6 @@ def _read_rows(path: Path) -> dict[str, list[str]]:
 def synth(config: SynthConfig, progress: Callable[[int, int, int], None] | None = None) -> dict:
     """Write the dataset; returns counts. progress(done, total, written) is called after each frame."""
 
-
     court = load_court(config.court)
     camera = load_camera(config.camera or court.default_camera)
     out = Path(config.out)

@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 import os
 import re
-import subprocess
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -109,20 +108,6 @@ def test_kill_mid_push_leaves_a_consistent_store_and_the_push_resumes(bench: Ben
     finally:
         infer.stop()
 
-
-@pytest.fixture()
-def small_disk(tmp_path: Path) -> Iterator[Path]:
-    """An 8 MiB filesystem of its own (tmpfs), so the disk really fills up; skipped where mounting is not allowed."""
-    mount_point = tmp_path / "disk"
-    mount_point.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mount_point)],
-                          capture_output=True, text=True)
-    if done.returncode:
-        pytest.skip(f"cannot mount a small tmpfs here: {done.stderr.strip() or done.returncode}")
-    try:
-        yield mount_point
-    finally:
-        subprocess.run(["umount", str(mount_point)], check=True)
 
 
 def test_disk_full_refuses_the_push_and_keeps_the_store(bench: Bench, small_disk: Path) -> None:

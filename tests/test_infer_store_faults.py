@@ -7,7 +7,6 @@ from __future__ import annotations
 import hashlib
 import os
 import resource
-import subprocess
 import time
 from pathlib import Path
 from typing import Iterator
@@ -125,20 +124,6 @@ def test_model_names_like_the_stores_own_files_do_not_wedge_it(robot: Robot) -> 
     assert robot.assert_agree() == ("default", 1)
     assert not any((robot.store_dir / INCOMING).iterdir())
 
-
-@pytest.fixture()
-def small_disk(tmp_path: Path) -> Iterator[Path]:
-    """An 8 MiB filesystem of its own (tmpfs), so the disk really fills up; skipped where mounting is not allowed."""
-    mount_point = tmp_path / "disk"
-    mount_point.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=8m", "tmpfs", str(mount_point)],
-                          capture_output=True, text=True)
-    if done.returncode:
-        pytest.skip(f"cannot mount a small tmpfs here: {done.stderr.strip() or done.returncode}")
-    try:
-        yield mount_point
-    finally:
-        subprocess.run(["umount", str(mount_point)], check=True)
 
 
 def _fill(disk: Path) -> Path:

@@ -143,25 +143,12 @@ def test_router_killed_under_up_comes_back_each_time_with_the_short_delay(tmp_pa
     import os
     import signal
 
-    from buskit import folder_camera_toml, write_line_frames
-    from test_resilience_stage_kill import wait_for_router
+    from test_resilience_stage_kill import up_config, wait_for_router
 
-    from courtloc.bench_soak import child_processes
+    from courtloc.bench_procstats import child_processes
 
     port = free_port()
-    config = tmp_path / "up.toml"
-    config.write_text(f"""robot_id = "robot1"
-[zenoh]
-connect = ["{endpoint(port)}"]
-open_retry_s = 0.1
-open_retry_max_s = 0.3
-[router]
-listen = ["{endpoint(port)}"]
-[launcher]
-services = ["camera", "preprocess"]
-restart_backoff_s = 0.5
-restart_healthy_s = 600  # no reset between the kills, however slow this machine is
-{folder_camera_toml(write_line_frames(tmp_path / "frames"))}""")
+    config = up_config(tmp_path, port, "restart_healthy_s = 600  # no reset between the kills, however slow")
     up = Proc([*PYTHON, "up", "--config", str(config)]).start()
     client = None
     try:

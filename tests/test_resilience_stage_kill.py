@@ -44,7 +44,8 @@ def wait_for_router(port: int, timeout: float = 60.0) -> None:
     session.close()
 
 
-def _up_config(tmp_path: Path, port: int) -> Path:
+def up_config(tmp_path: Path, port: int, launcher_extra: str = "") -> Path:
+    """A `courtloc up` deployment of camera (a folder of line frames) and preprocess on `port`."""
     folder = write_line_frames(tmp_path / "frames")
     config = tmp_path / "up.toml"
     config.write_text(f"""robot_id = "robot1"
@@ -57,6 +58,7 @@ listen = ["{endpoint(port)}"]
 [launcher]
 services = ["camera", "preprocess"]
 restart_backoff_s = 0.5
+{launcher_extra}
 {folder_camera_toml(folder)}""")
     return config
 
@@ -64,7 +66,7 @@ restart_backoff_s = 0.5
 def test_launcher_restarts_a_killed_stage_and_leaves_the_others(tmp_path: Path) -> None:
     port = free_port()
     summary_path = tmp_path / "summary.json"
-    up = Proc([*PYTHON, "up", "--config", str(_up_config(tmp_path, port)), "--summary-json",
+    up = Proc([*PYTHON, "up", "--config", str(up_config(tmp_path, port)), "--summary-json",
                str(summary_path)]).start()
     client = None
     try:

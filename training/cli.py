@@ -26,7 +26,6 @@ def register_export(export_sub: argparse._SubParsersAction) -> None:
     export.set_defaults(func=_export)
 
 
-
 def register(sub: argparse._SubParsersAction) -> None:
     train = sub.add_parser("train", help="train the paper network on a seed-format dataset (needs torch)")
     add_dataset_arguments(train)

@@ -194,5 +194,3 @@ def _jpeg_view(frame: Frame) -> bytes:
             raise ValueError("JPEG encoding failed")
         frame = frame.model_copy(update={"encoding": "jpeg", "data": encoded.tobytes()})
     return json_view(frame, scene.CAMERA_FRAME).data
-
-

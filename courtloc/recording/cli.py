@@ -76,7 +76,6 @@ def add_capture_parser(dataset_sub: argparse._SubParsersAction) -> None:
     capture.set_defaults(func=run_capture)
 
 
-
 def _deployment(args: argparse.Namespace):  # noqa: ANN202
     """The deployment (a bad file or field raises, named), once its router answers (or --timeout)."""
     config = client_deployment(args)

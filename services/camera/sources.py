@@ -37,6 +37,7 @@ class FrameSource(Protocol):
     def open(self) -> None: ...
     def read(self, out: np.ndarray | None = None) -> Capture:
         """The next frame; a source that decodes may write it into `out` (when the shape fits) and return it."""
+
     def close(self) -> None: ...
 
 

@@ -149,5 +149,3 @@ class ModelControl:
                                    shadow=shadow.ok and shadow.name == stored.ref.name
                                    and shadow.version == stored.ref.version))
         return ModelReply(ok=True, models=infos, shadow=shadow.shadow)
-
-

@@ -242,5 +242,3 @@ class ModelStore:
         if not (upload_id.isascii() and upload_id.isalnum() and len(upload_id) <= 64):
             raise StoreError("bad upload id")
         return self.root / INCOMING / upload_id
-
-
