@@ -61,6 +61,27 @@ def _wait_matched(session: zenoh.Session, key: str, timeout: float = 20.0) -> An
     return publisher
 
 
+def _ros_tokens(session: zenoh.Session, count: int, timeout: float = 20.0) -> list[str]:
+    """The bridge's discovery tokens as a ROS 2 graph sees them. They reach the router after the bridge says
+    it is up, so a one-shot query can come back empty: listen (with history) until all have arrived."""
+    alive: set[str] = set()
+    arrived = threading.Condition()
+
+    def on_token(sample: zenoh.Sample) -> None:
+        with arrived:
+            if sample.kind == zenoh.SampleKind.PUT:
+                alive.add(str(sample.key_expr))
+            arrived.notify_all()
+
+    listener = session.liveliness().declare_subscriber("@ros2_lv/0/**", on_token, history=True)
+    try:
+        with arrived:
+            arrived.wait_for(lambda: len(alive) >= count, timeout)
+            return sorted(alive)
+    finally:
+        listener.undeclare()
+
+
 @pytest.mark.integration
 def test_bridge_speaks_rmw_zenoh_both_ways() -> None:
     port = free_port()
@@ -79,8 +100,7 @@ def test_bridge_speaks_rmw_zenoh_both_ways() -> None:
     try:
         bridge.wait_line("ros bridge up")
         # discovery as a ROS 2 node sees it: a node, two publishers, one subscription
-        tokens = [str(reply.ok.key_expr) for reply in client.session.liveliness().get("@ros2_lv/0/**", timeout=10)
-                  if reply.ok is not None]
+        tokens = _ros_tokens(client.session, count=4)
         kinds = sorted(token.split("/")[5] for token in tokens)
         assert kinds == ["MP", "MP", "MS", "NN"], tokens
         pose_token = next(t for t in tokens if "PoseWithCovarianceStamped" in t)
