@@ -13,6 +13,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from courtloc.router_process import ROUTER_MODULE
+
 _PROC = Path("/proc")
 _TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
@@ -98,7 +100,7 @@ def child_processes(parent: int) -> dict[str, int]:
         stage = next((a.rsplit(".", 1)[1] for a in argv if a.startswith(STAGE_MODULE_PREFIX)), None)
         if stage is not None:  # a stage runs as its own entry point, `python -m courtloc.services.<stage>`
             found[stage] = int(entry.name)
-        elif "router" in argv:
+        elif ROUTER_MODULE in argv or "router" in argv:  # `courtloc router` becomes ROUTER_MODULE at once
             found["router"] = int(entry.name)
     return found
 

@@ -2,22 +2,16 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import sys
 from pathlib import Path
 
-import zenoh
-
-from courtloc.cli_errors import RUN_EXIT, UsageError
-from courtloc.common.bus import ZenohConfig, build_zenoh_config
-from courtloc.common.exposure import insecure_exposure, is_loopback, warn_while_insecure
-from courtloc.common.security import router_settings
+from courtloc.cli_errors import UsageError
+from courtloc.common.exposure import is_loopback
 from courtloc.common.services_table import SERVICES
-from courtloc.common.signals import stop_on_signals
 from courtloc.recording.busargs import add_timeout_argument
-from courtloc.security.acl import access_control
+from courtloc.router_process import RouterSettings, router_argv
 from courtloc.services.deployment import load_deployment
 
 log = logging.getLogger("courtloc.stage")
@@ -63,25 +57,11 @@ def run_router(args: argparse.Namespace) -> int:
         print(f"router: --listen {', '.join(exposed)} is reachable beyond this machine: set [router] secure_dir "
               "(courtloc secure init) or insecure = true in the deployment file", file=sys.stderr)
         return 2
-    router_cfg = ZenohConfig(mode="router", connect=config.router.connect, listen=listen,
-                             config_file=config.zenoh.config_file, shared_memory=config.zenoh.shared_memory)
-    stop = stop_on_signals()
-    try:
-        zcfg = build_zenoh_config(router_cfg)
-        if config.router.secure_dir is not None:
-            for path, value in {**router_settings(config.router.secure_dir),
-                                "access_control": access_control(config.robot_id)}.items():
-                zcfg.insert_json5(path, json.dumps(value))
-        session = zenoh.open(zcfg)
-    except zenoh.ZError as exc:  # (a missing credential file is a ValueError: one line from courtloc.cli)
-        reason = " ".join(str(exc).split(" at ")[0].split())
-        raise UsageError(f"cannot listen on {', '.join(listen)}: {reason}", RUN_EXIT) from None
-    log.info("router listening on %s", ", ".join(listen))
-    print(f"router listening on {', '.join(listen)}", flush=True)
-    warn_while_insecure(insecure_exposure(listen, config.router.secure_dir is not None), stop, log)
-    try:
-        while not stop.wait(0.5):
-            pass
-    finally:
-        session.close()
-    return 0
+    settings = RouterSettings(robot_id=config.robot_id, listen=listen, connect=config.router.connect,
+                              secure_dir=config.router.secure_dir, zenoh_config_file=config.zenoh.config_file,
+                              shared_memory=config.zenoh.shared_memory)
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    # This process becomes the router's own: zenoh and the access rules, not the CLI's libraries.
+    os.execv(sys.executable, router_argv(settings, args.verbose))

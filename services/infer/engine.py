@@ -10,6 +10,7 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
+from courtloc.common.heap import return_free_heap
 from courtloc.localizer.golden import run_golden
 from courtloc.localizer.manifest import Manifest
 from courtloc.localizer.predictor import Predictor
@@ -59,6 +60,7 @@ def load_model(stored: StoredModel, config: InferConfig, validate: bool = False,
     loaded = LoadedModel(stored.ref, predictor, model_file.manifest.input.kind)
     if validate:
         _warm_up(loaded, stored.folder)
+    return_free_heap()  # the field's build scratch: ~90 MB the stage would otherwise keep for good
     return loaded
 
 
