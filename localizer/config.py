@@ -92,6 +92,9 @@ class MotionConfig(BaseModel):
                                    "std, e.g. after riding degenerate views) is dropped: a valid fit near it would be "
                                    "a new acquisition, not evidence for the track")
     frame_period_s: float = Field(0.085, gt=0, description="assumed time between frames that carry no time")
+    regain_std_m: float = Field(0.16, gt=0, description="a track whose prediction is known worse than this (worst-"
+                                "direction position std) answers its next valid fit invalid ('confirming'): "
+                                "validity comes back from two agreeing frames, not one")
 
 
 class AcquireConfig(BaseModel):

@@ -40,7 +40,7 @@ class LocalizeResult:
     mode: str  # "track" or "global"
     alternatives: list[np.ndarray] = field(default_factory=list)  # the mirror twin in "both" mode; the other
     # hypotheses while acquiring
-    status: str = ""  # why an answer is invalid beyond its fit: "ambiguous", "searching", "confirming"
+    status: str = ""  # why an answer is invalid beyond its fit: "ambiguous", "searching", "confirming", "jump"
 
     @property
     def valid(self) -> bool:
@@ -148,9 +148,19 @@ class GeometricLocalizer:
             innov = motion.innovation(pred, res.pose, r)
             if innov.chi2 <= mcfg.gate_chi2:
                 new = motion.update(pred, res.pose, r, innov)
-                return TrackStep(self._fused(res, new), new)
-            if res.valid:  # the evidence disagrees with the track: restart the track there
-                return TrackStep(res, motion.start(res.pose, res.fit.covariance, t, mcfg))
+                fused = self._fused(res, new)
+                if fused.valid and pred.position_std_m > mcfg.regain_std_m:
+                    # The track had drifted (coasting, degenerate views): a lone valid fit then decides too
+                    # much (one fit 0.55 m off with a 0.08 m std at the seed court's end line was fused as
+                    # valid). It re-anchors the track; the next agreeing frame answers valid.
+                    fused = self._status(self._answer(fused, new.pose, invalid=True), "confirming")
+                return TrackStep(fused, new)
+            if res.valid:
+                # The evidence disagrees with the track: restart the track there, but one frame is not
+                # enough to answer valid from (a single bad fit at a line end jumped 0.4-0.6 m on the
+                # seed recording): the next frame must agree with the restarted track.
+                return TrackStep(self._status(self._answer(res, res.pose, invalid=True), "jump"),
+                                 motion.start(res.pose, res.fit.covariance, t, mcfg))
         return TrackStep(self._answer(res, pred.pose, invalid=True), motion.coast(pred, mcfg))
 
     # ---- acquisition (acquire.py has the rule) ------------------------------------------------------

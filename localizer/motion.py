@@ -14,7 +14,10 @@ only ever holds past frames. The rules, explicit:
   most `gate_chi2`) updates the state; a degenerate fit's huge covariance in its free direction leaves
   that direction to the prediction;
 - a valid fit that disagrees restarts the state at the fit (the fit is the evidence; a filter that is
-  wrong would otherwise never let go); a trackable but invalid one that disagrees is ignored;
+  wrong would otherwise never let go), answered invalid (`jump`): the next frame must agree with it; a
+  trackable but invalid one that disagrees is ignored;
+- a state known worse than `regain_std_m` (after coasting or degenerate views) answers its next valid
+  fit invalid (`confirming`): one fit re-anchors it, two agreeing frames make it valid again;
 - a frame without a usable fit answers the prediction (invalid) and counts as lost; after
   `max_lost_frames` lost frames in a row, a gap over `max_gap_s`, or once the state's position std
   passes `max_track_std_m`, the track is dropped and the caller acquires again with the lost state's

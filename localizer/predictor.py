@@ -48,7 +48,7 @@ class Prediction(BaseModel):
     position_std_m: Optional[float] = None
     alternatives: list[tuple[float, float, float]] = Field(default_factory=list)  # symmetry "both"
     trackable: bool = False  # fine as the next frame's `previous` even when not valid (degenerate view)
-    reason: str = ""  # why not valid beyond the fit's quality: "ambiguous", "searching", "confirming"
+    reason: str = ""  # why not valid beyond the fit's quality: "ambiguous", "searching", "confirming", "jump"
 
 
 class Predictor(Protocol):

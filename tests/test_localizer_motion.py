@@ -149,6 +149,37 @@ def test_track_keeps_the_twin_of_the_state(setup) -> None:
     assert step.result.valid and _close(step.result.pose, twin), "the same paint, seen from the mirror pose"
 
 
+def _still_track(pose, pos_std: float) -> motion.MotionState:
+    """A track standing still at `pose`, its position known to `pos_std`, its heading to 0.5 degree."""
+    cov = np.diag([pos_std ** 2, pos_std ** 2, math.radians(0.5) ** 2, 1e-4, 1e-4, 1e-4])
+    return motion.MotionState(mean=np.concatenate([np.asarray(pose, float), np.zeros(3)]), cov=cov, t=0.0)
+
+
+@pytest.mark.parametrize("pos_std, first_valid", [(0.03, True), (0.3, False)])
+def test_a_drifted_track_regains_validity_from_two_agreeing_frames(setup, pos_std, first_valid) -> None:
+    """A track known worse than `regain_std_m` (it coasted, or rode degenerate views) does not answer valid
+    from one valid fit: that fit re-anchors it, and the next frame that agrees answers valid."""
+    loc, frame, _ = setup
+    assert 0.03 < loc.config.motion.regain_std_m < 0.3
+    step = loc.track(frame, _still_track(np.array(POSE) + [0.04, -0.03, 0.01], pos_std), 0.08)
+    assert step.result.mode == "track" and step.state.lost == 0, "the fit was fused either way"
+    assert _close(step.result.pose, POSE)
+    assert step.result.valid is first_valid
+    assert first_valid or step.result.status == "confirming"
+    step = loc.track(frame, step.state, 0.16)
+    assert step.result.valid and _close(step.result.pose, POSE)
+
+
+def test_a_fit_that_disagrees_restarts_the_track_but_is_not_valid_on_its_own(setup) -> None:
+    loc, frame, _ = setup
+    tight = _still_track(np.array(POSE) + [0.25, 0.0, 0.0], 0.01)  # sure of itself, 25 cm off
+    step = loc.track(frame, tight, 0.08)
+    assert not step.result.valid and step.result.status == "jump"
+    assert _close(step.state.pose, POSE), "the track restarted at the fit"
+    step = loc.track(frame, step.state, 0.16)
+    assert step.result.valid and _close(step.result.pose, POSE), "the next frame agrees: valid"
+
+
 def _far_edge_only(court, loc: GeometricLocalizer, pose: np.ndarray):
     """A degenerate view: only the white floor's far edge at y = 5.99 (x along it is free)."""
     pts, nrm = court.white_edges(0.05)
