@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from pathlib import Path
 from typing import Literal, Optional
 
@@ -15,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from courtloc.sim.render import Renderer, RenderOptions
 from courtloc.sim.trajectory import CsvTrajectory, KidnapTrajectory, RandomWalkTrajectory, WaypointTrajectory
+from courtloc.sim.twin_mcu import TwinMcu, TwinMcuConfig
 from courtloc.world.camera import Pose, load_camera
 from courtloc.world.court import load_court
 
@@ -47,6 +49,8 @@ class SimSourceConfig(BaseModel):
                                                  "shows nothing usable; the robot keeps moving")
     outage: Literal["dark", "blocked"] = Field("dark", description="dark: lens capped (black + sensor noise); "
                                                "blocked: something right in front of the lens")
+    mcu: Optional[TwinMcuConfig] = Field(None, description="run the robot's MCU too: wheel odometry and gyro of "
+                                         "this trajectory on a pty at `mcu.link` (see twin_mcu.py)")
 
     @field_validator("start")
     @classmethod
@@ -75,6 +79,7 @@ class SimSource:
         self.frame_index = 0
         self._renderer = None
         self._trajectory = None
+        self._mcu: TwinMcu | None = None
 
     # ---- lifecycle ------------------------------------------------------------------------------
     def open(self) -> "SimSource":
@@ -85,10 +90,16 @@ class SimSource:
         self._trajectory = self._build_trajectory(court)
         self._renderer = Renderer(court, camera)
         self.frame_index = 0
+        if cfg.mcu is not None:
+            self._mcu = TwinMcu(cfg.mcu, self._trajectory, cfg.kidnaps_s, cfg.fps, seed=cfg.seed)
+            self._mcu.start()
         log.info("sim source: court %s, camera %s, %s trajectory at %.1f fps", court.name, camera.name, cfg.trajectory, cfg.fps)
         return self
 
     def close(self) -> None:
+        if self._mcu is not None:
+            self._mcu.stop()
+            self._mcu = None
         self._renderer = None
         self._trajectory = None
 
@@ -135,6 +146,8 @@ class SimSource:
         else:
             frame = self._renderer.render(pose, self.config.render, rng, self._shutter_open_pose(index, pose))
         self.frame_index += 1
+        if self._mcu is not None:  # the frame is out now: the wheels have driven to its pose
+            self._mcu.clock.mark(index / self.config.fps, time.monotonic_ns())
         return frame, (float(pose[0]), float(pose[1]), float(pose[2]))
 
     def _outage_frame(self, rng: np.random.Generator) -> np.ndarray:
