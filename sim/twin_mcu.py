@@ -23,6 +23,7 @@ import os
 import threading
 import time
 import tty
+from collections import deque
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -52,27 +53,56 @@ class TwinMcuConfig(BaseModel):
 class SimClock:
     """Sim time as a function of host monotonic time, learnt from the frames the camera showed.
 
-    Between frames sim time runs at host speed, but never past the next frame's sim time: a camera that
-    renders late holds the robot still until its frame is out, so sim time never runs backwards and
-    equals each frame's time at that frame's capture. Before the first frame the robot stands at t = 0.
+    The camera marks each frame's (sim time, host time) once it is out. Frame times jitter by the render
+    time, and a camera that cannot keep its rate plays the robot in slow motion, so the MCU's sim time is
+    the least-squares line through the last `window` marks (its slope is the slow-motion factor), never
+    more than a frame ahead of the newest one, approached smoothly (time constant `smooth_s`) and never
+    backwards: the wheels see steady driving, not the camera's jitter, and agree with each frame's truth
+    to within that jitter. Before the first frame the robot stands at t = 0.
     """
 
-    def __init__(self, fps: float) -> None:
+    def __init__(self, fps: float, window: int = 16, smooth_s: float = 0.1) -> None:
         self.period_s = 1.0 / fps
+        self.smooth_s = smooth_s
         self._lock = threading.Lock()
-        self._anchor: Optional[tuple[float, int]] = None
+        self._marks: deque[tuple[float, int]] = deque(maxlen=window)
+        self._sim_s = 0.0  # the consumer's (advance()'s) own state
+        self._at_ns: Optional[int] = None
 
     def mark(self, sim_s: float, mono_ns: int) -> None:
         with self._lock:
-            self._anchor = (sim_s, mono_ns)
+            self._marks.append((sim_s, mono_ns))
 
-    def at(self, mono_ns: int) -> float:
+    def target(self, mono_ns: int) -> tuple[float, float]:
+        """(sim time the frames say it is at `mono_ns`, sim seconds per host second)."""
         with self._lock:
-            anchor = self._anchor
-        if anchor is None:
-            return 0.0
-        sim_s, at_ns = anchor
-        return sim_s + min(max((mono_ns - at_ns) / 1e9, 0.0), self.period_s)
+            marks = list(self._marks)
+        if not marks:
+            return 0.0, 0.0
+        newest_sim, newest_ns = marks[-1]
+        if len(marks) == 1:
+            return newest_sim + min(max((mono_ns - newest_ns) / 1e9, 0.0), self.period_s), 1.0
+        hosts = [(w - newest_ns) / 1e9 for _, w in marks]
+        sims = [sim for sim, _ in marks]
+        mean_h, mean_s = sum(hosts) / len(hosts), sum(sims) / len(sims)
+        var = sum((h - mean_h) ** 2 for h in hosts)
+        rate = sum((h - mean_h) * (s - mean_s) for h, s in zip(hosts, sims)) / var if var > 0 else 1.0
+        rate = min(max(rate, 0.0), 3.0)
+        line = mean_s + rate * ((mono_ns - newest_ns) / 1e9 - mean_h)
+        return min(line, newest_sim + self.period_s), rate
+
+    def advance(self, mono_ns: int) -> float:
+        """The MCU's sim time at `mono_ns` (call from one thread, with increasing times)."""
+        target, rate = self.target(mono_ns)
+        if self._at_ns is None:
+            self._sim_s = target
+        else:
+            dt = max((mono_ns - self._at_ns) / 1e9, 0.0)
+            predicted = self._sim_s + rate * dt
+            step = predicted + min(dt / self.smooth_s, 1.0) * (target - predicted)
+            self._sim_s = max(step, self._sim_s)
+        self._at_ns = mono_ns
+        return self._sim_s
 
 
 def felt_motion(trajectory: Trajectory, kidnaps_s: Sequence[float], s0: float,
@@ -146,13 +176,13 @@ class TwinMcu:
     def _run(self) -> None:
         period_ns = int(1e9 / self.config.odometry.rate_hz)
         start_ns = prev_ns = time.monotonic_ns()
-        prev_sim = self.clock.at(prev_ns)
+        prev_sim = self.clock.advance(prev_ns)
         next_ns = prev_ns + period_ns
         while not self._stop.wait(max(0.0, (next_ns - time.monotonic_ns()) / 1e9)):
             now_ns = time.monotonic_ns()
             next_ns = max(next_ns + period_ns, now_ns)  # behind (a loaded machine): the next window is longer
             self._read_host(now_ns)
-            sim = self.clock.at(now_ns)
+            sim = self.clock.advance(now_ns)
             dt = (now_ns - prev_ns) / 1e9
             if dt <= 0:
                 continue
