@@ -204,7 +204,9 @@ def kidnap_metrics(poses: list[PoseSample], truths: list[TruthSample], kidnaps_n
         horizon = ordered[i + 1] if i + 1 < len(ordered) else end_ns
         window = [(p, e) for p, e in matched if start <= p.capture_ns < horizon]
         first_invalid = next((p for p, _ in window if not p.valid), None)
+        last_before = next((p for p, _ in reversed(matched) if p.capture_ns < start), None)
         rows.append({
+            "valid_before": None if last_before is None else last_before.valid,  # False: nothing to notice
             "noticed_s": None if first_invalid is None else max(first_invalid.published_ns - start, 0) / 1e9,
             "valid_before_noticed": sum(p.valid for p, _ in window
                                         if first_invalid is None or p.capture_ns < first_invalid.capture_ns),

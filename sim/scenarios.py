@@ -123,6 +123,12 @@ def _blackout(court: str, seconds: float, seed: int) -> Scenario:
                     blackout_s=(start, end))
 
 
+def _drive_kidnap(court: str, seconds: float, seed: int) -> Scenario:
+    times = [round(seconds / 3, 3), round(2 * seconds / 3, 3)]
+    return Scenario("drive_kidnap", f"as drive; teleported within its half at {times} s (the wheels feel nothing), "
+                    "random walk from there", _loop(court, seed, kidnaps_s=times), fusion=True)
+
+
 SCENARIOS: dict[str, Callable[[str, float, int], Scenario]] = {
     "clean": _clean,
     "randomised": _randomised,
@@ -133,6 +139,7 @@ SCENARIOS: dict[str, Callable[[str, float, int], Scenario]] = {
     "outage": _outage,
     "drive": _drive,
     "blackout": _blackout,
+    "drive_kidnap": _drive_kidnap,
 }
 
 
