@@ -1,0 +1,72 @@
+"""The twin's MCU: its clock follows the camera's frames, its wheels do not feel kidnaps, and the bridge's
+own link reads its ODOMETRY frames off the pty and gets a STATUS for each of its frames."""
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import pytest
+
+from courtloc.services.shooter_bridge.config import LinkConfig
+from courtloc.services.shooter_bridge.link import McuLink
+from courtloc.services.shooter_bridge.protocol import StatusFlag
+from courtloc.sim.odometry import OdometrySimConfig
+from courtloc.sim.trajectory import WaypointTrajectory
+from courtloc.sim.twin_mcu import SimClock, TwinMcu, TwinMcuConfig, felt_motion
+
+LOOP = WaypointTrajectory([(0.5, -2.0, 0.2), (4.5, -1.0, 0.9), (4.0, 2.5, 2.4)], speed=1.5, yaw_rate=1.0)
+
+
+def test_sim_clock_runs_at_the_frames_pace_and_never_backwards():
+    clock = SimClock(fps=30.0)
+    assert clock.advance(0) == 0.0  # before the first frame the robot stands at the start
+    # The camera runs in slow motion (a frame every 40 ms for 1/30 s of sim time), jittering by +-5 ms.
+    seen = []
+    for k in range(60):
+        at_ns = int(k * 40e6 + (5e6 if k % 2 else -5e6)) + 10_000_000
+        clock.mark(k / 30.0, at_ns)
+        seen += [clock.advance(at_ns + step * 10_000_000) for step in range(4)]
+    assert all(b >= a for a, b in zip(seen, seen[1:]))
+    _, rate = clock.target(60 * 40_000_000)
+    assert rate == pytest.approx((1 / 30) / 0.040, rel=0.05)  # 0.83 sim seconds per host second
+    # When frame 60 is due, the MCU's sim time is where the frames say, to within their jitter (5 ms).
+    assert clock.advance(int(60 * 40e6 + 10e6)) == pytest.approx(60 / 30.0, abs=0.01)
+
+
+def test_the_wheels_do_not_feel_a_kidnap():
+    class Teleported:  # drives ahead at 1 m/s; at t = 1 s it is put down elsewhere, turned by 1 rad
+        def pose_at(self, t: float) -> tuple[float, float, float]:
+            if t < 1.0:
+                return t, 0.0, 0.0
+            return 5.0 + (t - 1.0) * math.cos(1.0), 3.0 + (t - 1.0) * math.sin(1.0), 1.0
+
+    forward, left, turn = felt_motion(Teleported(), [1.0], 0.95, 1.05)
+    assert forward == pytest.approx(0.1, abs=1e-5) and left == pytest.approx(0.0, abs=1e-9)
+    assert turn == pytest.approx(0.0, abs=1e-9)
+    assert felt_motion(Teleported(), [], 0.95, 1.05)[2] == pytest.approx(1.0)  # unless told it was a teleport
+
+
+@pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs ptys")
+def test_the_bridge_link_reads_the_twin_mcu_off_its_pty(tmp_path: Path):
+    quiet = OdometrySimConfig(speed_noise_m_s=0.0, wheel_yaw_noise_rad_s=0.0, gyro_noise_rad_s=0.0,
+                              gyro_bias_rad_s=0.0, slip_rate_hz=0.0)
+    mcu = TwinMcu(TwinMcuConfig(link=str(tmp_path / "mcu"), odometry=quiet), LOOP, [], fps=30.0)
+    samples = []
+    mcu.start()
+    link = McuLink(LinkConfig(port=str(tmp_path / "mcu"), heartbeat_s=0.05),
+                   on_odometry=lambda sample, received_ns: samples.append(sample))
+    try:
+        assert (tmp_path / "mcu").is_symlink()
+        link.start()
+        # Odometry flows once the MCU hears the bridge (its heartbeats); each is answered with a STATUS.
+        assert link.wait_until(lambda lk: lk.stats.odometry_frames >= 20 and lk.stats.status_frames >= 2, 20.0)
+        assert link.last_status is not None and link.last_status.flags & StatusFlag.HOLDING
+        # No frame shown yet: the robot stands at the start, the wheels read nothing.
+        assert all(s.vx_m_s == 0.0 and s.vy_m_s == 0.0 and s.wheels_valid and s.gyro_valid for s in samples)
+        assert [s.seq for s in samples] == list(range(samples[0].seq, samples[0].seq + len(samples)))
+        assert link.stats.bad_odometry == 0
+    finally:
+        link.stop()
+        mcu.stop()
+    assert not (tmp_path / "mcu").exists()
