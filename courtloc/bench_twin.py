@@ -387,7 +387,7 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any],  # 
             health = {name: dict(h.detail) for name, h in recorder.state.health.items()}
     truths = [t for t in recorder.record.truths if t.capture_ns <= end_ns]
     poses = [p for p in recorder.record.poses if p.capture_ns <= end_ns]
-    events = scenario_events(sc, truths, poses, args.fps, kill_ns)
+    events = scenario_events(sc, truths, poses, args.fps, kill_ns, real_time=fused)
     result = twin_metrics(poses, truths, events, end_ns)
     first = min((t.capture_ns for t in truths), default=0)
     last = max((t.capture_ns for t in truths), default=0)
@@ -398,7 +398,7 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any],  # 
     # Sim time is frames / fps: a camera that cannot render at fps plays the robot in slow motion.
     camera_fps = (len(truths) - 1) / ((last - first) / 1e9) if last > first else None
     if sc.blackout_s is not None:
-        start_ns, end_ns_blind = (_first_capture(truths, t_s, args.fps) for t_s in sc.blackout_s)
+        start_ns, end_ns_blind = (_first_capture(truths, t_s, args.fps, fused) for t_s in sc.blackout_s)
         if start_ns is not None:
             result["blackout"] = blackout_metrics(poses, truths, start_ns, end_ns_blind or end_ns)
     kidnaps = [e.start_ns for e in events if e.kind == "kidnap"]
@@ -444,25 +444,20 @@ def _last_line(path: Path | None) -> str:
     return lines[-1].strip() if lines else "(no output)"
 
 
-def scenario_events(sc, truths: list, poses: list, fps: float, kill_ns: int | None) -> list:  # noqa: ANN001
+def scenario_events(sc, truths: list, poses: list, fps: float, kill_ns: int | None,  # noqa: ANN001
+                    real_time: bool = False) -> list:
     """Where each recovery window starts: the first pose of the run, the first frame after each kidnap and
     after each outage, and the first pose of the restarted infer process."""
 
     events = []
     if poses:
         events.append(Event("start", min(p.capture_ns for p in poses)))
-    ordered = sorted(truths, key=lambda t: t.seq)
-
-    def first_frame_from(t_s: float) -> int | None:
-        seq = int(math.ceil(t_s * fps - 1e-9))
-        return next((t.capture_ns for t in ordered if t.seq >= seq), None)
-
     for t_s in sc.sim.kidnaps_s:
-        start = first_frame_from(t_s)
+        start = _first_capture(truths, t_s, fps, real_time)
         if start is not None:
             events.append(Event("kidnap", start))
     for _, end_s in sc.sim.outages_s:
-        start = first_frame_from(end_s)
+        start = _first_capture(truths, end_s, fps, real_time)
         if start is not None:
             events.append(Event("outage", start))
     if kill_ns is not None:
@@ -472,8 +467,15 @@ def scenario_events(sc, truths: list, poses: list, fps: float, kill_ns: int | No
     return events
 
 
-def _first_capture(truths: list, t_s: float, fps: float) -> int | None:  # noqa: ANN001
-    """Capture stamp of the first frame at or after sim time `t_s`."""
+def _first_capture(truths: list, t_s: float, fps: float, real_time: bool = False) -> int | None:  # noqa: ANN001
+    """Capture stamp of the first frame at or after sim time `t_s`: frame seq / fps, or with the twin's MCU
+    (a sim in real time, sim/source.py) the capture stamp since frame 0's."""
+    if real_time:
+        zero = next((t.capture_ns for t in truths if t.seq == 0), None)
+        if zero is None:
+            return None
+        return min((t.capture_ns for t in truths if t.capture_ns >= zero + int(round(t_s * 1e9)) - 1000),
+                   default=None)
     seq = int(math.ceil(t_s * fps - 1e-9))
     return min((t.capture_ns for t in truths if t.seq >= seq), default=None)
 

@@ -1,9 +1,11 @@
 """The twin's MCU: the robot's wheels and gyro, on a pseudo-terminal the shooter bridge opens as its port.
 
 The simulated camera (`source.py`) runs it when its config has an `mcu` table. It follows the SAME truth
-the camera renders: the camera tells it, frame by frame, which sim time it showed at which host time
-(`SimClock`), so the wheels move exactly as the frames do, even when the camera renders slower than its
-rate (the robot then drives in slow motion for both). Kidnaps are teleports the wheels do not feel.
+the camera renders on the SAME clock: with the MCU the sim runs in real time (`SimClock`: host monotonic
+time since the first frame's read), each frame shows the robot where it is at its read and is stamped
+with that instant, so frames, ground truth and odometry agree whatever the camera's pacing (a camera
+that cannot keep its rate misses moments; it does not slow the robot down, which no wheel could follow).
+Kidnaps are teleports the wheels do not feel.
 
 Every 1 / `odometry.rate_hz` of host time it writes one ODOMETRY frame (`protocol.encode_odometry`, the
 same bytes a real MCU sends) for the window since the previous one, with `OdometrySimulator`'s errors
@@ -23,7 +25,6 @@ import os
 import threading
 import time
 import tty
-from collections import deque
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -51,58 +52,18 @@ class TwinMcuConfig(BaseModel):
 
 
 class SimClock:
-    """Sim time as a function of host monotonic time, learnt from the frames the camera showed.
+    """Sim time of host monotonic time: with the MCU the sim runs in real time from the first frame's read
+    (`start`); before it the robot stands at t = 0."""
 
-    The camera marks each frame's (sim time, host time) once it is out. Frame times jitter by the render
-    time, and a camera that cannot keep its rate plays the robot in slow motion, so the MCU's sim time is
-    the least-squares line through the last `window` marks (its slope is the slow-motion factor), never
-    more than a frame ahead of the newest one, approached smoothly (time constant `smooth_s`) and never
-    backwards: the wheels see steady driving, not the camera's jitter, and agree with each frame's truth
-    to within that jitter. Before the first frame the robot stands at t = 0.
-    """
+    def __init__(self) -> None:
+        self._t0_ns: Optional[int] = None
 
-    def __init__(self, fps: float, window: int = 16, smooth_s: float = 0.1) -> None:
-        self.period_s = 1.0 / fps
-        self.smooth_s = smooth_s
-        self._lock = threading.Lock()
-        self._marks: deque[tuple[float, int]] = deque(maxlen=window)
-        self._sim_s = 0.0  # the consumer's (advance()'s) own state
-        self._at_ns: Optional[int] = None
+    def start(self, t0_ns: int) -> None:
+        self._t0_ns = t0_ns
 
-    def mark(self, sim_s: float, mono_ns: int) -> None:
-        with self._lock:
-            self._marks.append((sim_s, mono_ns))
-
-    def target(self, mono_ns: int) -> tuple[float, float]:
-        """(sim time the frames say it is at `mono_ns`, sim seconds per host second)."""
-        with self._lock:
-            marks = list(self._marks)
-        if not marks:
-            return 0.0, 0.0
-        newest_sim, newest_ns = marks[-1]
-        if len(marks) == 1:
-            return newest_sim + min(max((mono_ns - newest_ns) / 1e9, 0.0), self.period_s), 1.0
-        hosts = [(w - newest_ns) / 1e9 for _, w in marks]
-        sims = [sim for sim, _ in marks]
-        mean_h, mean_s = sum(hosts) / len(hosts), sum(sims) / len(sims)
-        var = sum((h - mean_h) ** 2 for h in hosts)
-        rate = sum((h - mean_h) * (s - mean_s) for h, s in zip(hosts, sims)) / var if var > 0 else 1.0
-        rate = min(max(rate, 0.0), 3.0)
-        line = mean_s + rate * ((mono_ns - newest_ns) / 1e9 - mean_h)
-        return min(line, newest_sim + self.period_s), rate
-
-    def advance(self, mono_ns: int) -> float:
-        """The MCU's sim time at `mono_ns` (call from one thread, with increasing times)."""
-        target, rate = self.target(mono_ns)
-        if self._at_ns is None:
-            self._sim_s = target
-        else:
-            dt = max((mono_ns - self._at_ns) / 1e9, 0.0)
-            predicted = self._sim_s + rate * dt
-            step = predicted + min(dt / self.smooth_s, 1.0) * (target - predicted)
-            self._sim_s = max(step, self._sim_s)
-        self._at_ns = mono_ns
-        return self._sim_s
+    def at(self, mono_ns: int) -> float:
+        t0 = self._t0_ns
+        return 0.0 if t0 is None else max((mono_ns - t0) / 1e9, 0.0)
 
 
 def felt_motion(trajectory: Trajectory, kidnaps_s: Sequence[float], s0: float,
@@ -121,12 +82,12 @@ def felt_motion(trajectory: Trajectory, kidnaps_s: Sequence[float], s0: float,
 
 
 class TwinMcu:
-    """start() -> ... -> stop(); `clock.mark()` is fed by the camera with each frame it shows."""
+    """start() -> ... -> stop(); the camera starts `clock` at its first frame."""
 
-    def __init__(self, config: TwinMcuConfig, trajectory: Trajectory, kidnaps_s: Sequence[float], fps: float,
+    def __init__(self, config: TwinMcuConfig, trajectory: Trajectory, kidnaps_s: Sequence[float],
                  seed: int = 0) -> None:
         self.config = config
-        self.clock = SimClock(fps)
+        self.clock = SimClock()
         self._trajectory = trajectory
         self._kidnaps = [float(t) for t in kidnaps_s]
         self._errors = OdometrySimulator(trajectory, config.odometry, seed=seed)
@@ -176,13 +137,13 @@ class TwinMcu:
     def _run(self) -> None:
         period_ns = int(1e9 / self.config.odometry.rate_hz)
         start_ns = prev_ns = time.monotonic_ns()
-        prev_sim = self.clock.advance(prev_ns)
+        prev_sim = self.clock.at(prev_ns)
         next_ns = prev_ns + period_ns
         while not self._stop.wait(max(0.0, (next_ns - time.monotonic_ns()) / 1e9)):
             now_ns = time.monotonic_ns()
             next_ns = max(next_ns + period_ns, now_ns)  # behind (a loaded machine): the next window is longer
             self._read_host(now_ns)
-            sim = self.clock.advance(now_ns)
+            sim = self.clock.at(now_ns)
             dt = (now_ns - prev_ns) / 1e9
             if dt <= 0:
                 continue

@@ -43,7 +43,9 @@ def _until_seq(client: BusClient, path: str, seq: int, timeout: float = 60.0) ->
 def test_fused_pose_stays_valid_through_a_blackout_where_vision_only_goes_invalid(tmp_path: Path) -> None:
     sc = scenario("blackout", "seed-gazebo", SECONDS)
     start_s, end_s = sc.blackout_s
-    first_blind, first_seen_again = (int(math.ceil(t * FPS - 1e-9)) for t in (start_s, end_s))
+    # With the MCU the twin runs in real time: frame k shows sim time >= k / fps (more when frames were
+    # missed), so frames up to this one include every blind one; which are blind, their stamps say.
+    last_blind = int(math.ceil(end_s * FPS))
     args = argparse.Namespace(camera=None, config=None, fps=FPS, tell_start="pose")
     port = free_port()
     config = deployment_for(sc, args, port, tmp_path / "store", {}, mcu_link=tmp_path / "mcu")
@@ -71,9 +73,12 @@ def test_fused_pose_stays_valid_through_a_blackout_where_vision_only_goes_invali
         # The bridge opened the camera's pty and publishes the twin MCU's odometry.
         odometry = client.wait_for("shooter_bridge/odometry", lambda m: m.wheels_valid and m.gyro_valid)
         assert odometry.source == "mcu" and odometry.header.valid
-        poses = _until_seq(client, "infer/pose", first_seen_again)
-        shadows = _until_seq(client, "infer/shadow_pose", first_seen_again)
-        truths = {t.header.capture_mono_ns: t for t in _until_seq(client, "camera/ground_truth", first_seen_again)}
+        truths = {t.header.capture_mono_ns: t for t in _until_seq(client, "camera/ground_truth", last_blind)}
+        zero = min(truths)  # frame 0: sim time 0
+        last = max(truths)
+        assert (last - zero) / 1e9 >= end_s
+        poses = _until_seq(client, "infer/pose", truths[last].header.seq)
+        shadows = _until_seq(client, "infer/shadow_pose", truths[last].header.seq)
         # The infer stage says how it kept the pose valid: on odometry.
         client.wait_for("infer/health", lambda h: h.detail.get("fusion.valid_on_odometry", 0) > 0)
     finally:
@@ -82,11 +87,14 @@ def test_fused_pose_stays_valid_through_a_blackout_where_vision_only_goes_invali
         supervisor.stop_all()
 
     def blind(pose) -> bool:  # noqa: ANN001
-        return first_blind <= pose.header.seq < first_seen_again
+        return start_s * 1e9 <= pose.header.capture_mono_ns - zero < end_s * 1e9
 
-    shadow_before = [p for p in shadows if p.header.seq < first_blind and p.header.valid]
+    def before(pose) -> bool:  # noqa: ANN001
+        return pose.header.capture_mono_ns - zero < start_s * 1e9
+
+    shadow_before = [p for p in shadows if before(p) and p.header.valid]
     assert shadow_before, "the vision-only tracker was never valid before the blackout: nothing to compare"
-    assert any(p.header.valid and p.header.seq < first_blind for p in poses)
+    assert any(p.header.valid and before(p) for p in poses)
     shadow_blind = [p for p in shadows if blind(p)]
     fused_blind = [p for p in poses if blind(p)]
     assert len(shadow_blind) >= 10 and len(fused_blind) >= 10  # frames dropped under load are fine, a few are not

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from pathlib import Path
 
 import pytest
@@ -18,20 +19,30 @@ from courtloc.sim.twin_mcu import SimClock, TwinMcu, TwinMcuConfig, felt_motion
 LOOP = WaypointTrajectory([(0.5, -2.0, 0.2), (4.5, -1.0, 0.9), (4.0, 2.5, 2.4)], speed=1.5, yaw_rate=1.0)
 
 
-def test_sim_clock_runs_at_the_frames_pace_and_never_backwards():
-    clock = SimClock(fps=30.0)
-    assert clock.advance(0) == 0.0  # before the first frame the robot stands at the start
-    # The camera runs in slow motion (a frame every 40 ms for 1/30 s of sim time), jittering by +-5 ms.
-    seen = []
-    for k in range(60):
-        at_ns = int(k * 40e6 + (5e6 if k % 2 else -5e6)) + 10_000_000
-        clock.mark(k / 30.0, at_ns)
-        seen += [clock.advance(at_ns + step * 10_000_000) for step in range(4)]
-    assert all(b >= a for a, b in zip(seen, seen[1:]))
-    _, rate = clock.target(60 * 40_000_000)
-    assert rate == pytest.approx((1 / 30) / 0.040, rel=0.05)  # 0.83 sim seconds per host second
-    # When frame 60 is due, the MCU's sim time is where the frames say, to within their jitter (5 ms).
-    assert clock.advance(int(60 * 40e6 + 10e6)) == pytest.approx(60 / 30.0, abs=0.01)
+def test_sim_clock_is_host_time_since_the_first_frame():
+    clock = SimClock()
+    assert clock.at(5_000_000_000) == 0.0  # before the first frame the robot stands at the start
+    clock.start(5_000_000_000)
+    assert clock.at(4_000_000_000) == 0.0 and clock.at(6_500_000_000) == pytest.approx(1.5)
+
+
+@pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs ptys")
+def test_the_twin_camera_stamps_frames_with_the_instant_they_show(tmp_path: Path):
+    from courtloc.sim.source import SimSource, SimSourceConfig
+
+    config = SimSourceConfig(trajectory="waypoints", waypoints=[[0.5, -2.0, 0.2], [4.5, -1.0, 0.9]], speed_mps=1.5,
+                             mcu=TwinMcuConfig(link=str(tmp_path / "mcu")))
+    with SimSource(config) as source:
+        _, first = source.read()
+        t0 = source.taken_mono_ns
+        time.sleep(0.05)  # the robot drives on in host time between reads (no synchronisation: just a gap)
+        _, second = source.read()
+        elapsed = (source.taken_mono_ns - t0) / 1e9
+        assert elapsed >= 0.05
+        expected = WaypointTrajectory(config.waypoints, 1.5, config.yaw_rate_rps).pose_at(elapsed)
+        assert second == pytest.approx(expected) and first == pytest.approx((0.5, -2.0, 0.2))
+        assert (tmp_path / "mcu").is_symlink()
+    assert not (tmp_path / "mcu").exists()
 
 
 def test_the_wheels_do_not_feel_a_kidnap():
@@ -51,7 +62,7 @@ def test_the_wheels_do_not_feel_a_kidnap():
 def test_the_bridge_link_reads_the_twin_mcu_off_its_pty(tmp_path: Path):
     quiet = OdometrySimConfig(speed_noise_m_s=0.0, wheel_yaw_noise_rad_s=0.0, gyro_noise_rad_s=0.0,
                               gyro_bias_rad_s=0.0, slip_rate_hz=0.0)
-    mcu = TwinMcu(TwinMcuConfig(link=str(tmp_path / "mcu"), odometry=quiet), LOOP, [], fps=30.0)
+    mcu = TwinMcu(TwinMcuConfig(link=str(tmp_path / "mcu"), odometry=quiet), LOOP, [])
     samples = []
     mcu.start()
     link = McuLink(LinkConfig(port=str(tmp_path / "mcu"), heartbeat_s=0.05),

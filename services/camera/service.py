@@ -89,6 +89,11 @@ class CameraService(Service):
 
     def _publish_capture(self, capture: Capture) -> None:
         header = Header.now(self.robot_id, self._seq, self.name)
+        if capture.taken_mono_ns is not None and capture.taken_mono_ns <= header.capture_mono_ns:
+            # The source knows the instant the frame shows (the twin renders the robot's pose of that instant).
+            earlier = header.capture_mono_ns - capture.taken_mono_ns
+            header.capture_mono_ns -= earlier
+            header.capture_wall_ns -= earlier
         header.valid = True
         self._seq += 1
         start = time.perf_counter_ns()
