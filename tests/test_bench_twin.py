@@ -239,7 +239,8 @@ def test_fusion_scenarios_run_both_ways_by_default_and_report_side_by_side():
     assert variants(scenario("kidnap", "seed-gazebo", 30.0), "both") == ["vision_only", "fused"]
     assert variants(scenario("blackout", "seed-gazebo", 30.0), "off") == ["vision_only"]
     blackout = scenario("blackout", "seed-gazebo", 30.0)
-    assert blackout.blackout_s == (12.0, 14.0) and blackout.sim.outages_s == [(12.0, 14.0)]
+    assert blackout.blackout_s == (3.0, 5.0) and blackout.sim.outages_s == [(3.0, 5.0)]
+    assert scenario("blackout", "seed-gazebo", 5.0).blackout_s == (2.0, 3.5)  # a short run: earlier, shorter
     report = {"run": {"scenarios": ["clean", "blackout", "kidnap"]}, "clean": {"fusion": "vision_only"},
               "blackout": {"description": "", "vision_only": {"a": 1}, "fused": {"a": 2}},
               "kidnap": {"fusion": "fused"}}
