@@ -81,3 +81,17 @@ def test_the_bridge_link_reads_the_twin_mcu_off_its_pty(tmp_path: Path):
         link.stop()
         mcu.stop()
     assert not (tmp_path / "mcu").exists()
+
+
+def test_the_camera_stamps_a_frame_at_the_instant_its_source_says():
+    from courtloc.services.camera.service import capture_header
+
+    taken = time.monotonic_ns() - 12_000_000  # rendered 12 ms ago
+    header = capture_header("robot1", 7, "camera", taken)
+    assert header.capture_mono_ns == taken and header.seq == 7
+    assert header.stamps[-1].mono_ns - header.capture_mono_ns >= 12_000_000  # published after it was taken
+    assert header.stamps[-1].wall_ns - header.capture_wall_ns == header.stamps[-1].mono_ns - taken
+    future = capture_header("robot1", 8, "camera", time.monotonic_ns() + 10**9)  # a claim from the future
+    assert future.capture_mono_ns == future.stamps[-1].mono_ns
+    plain = capture_header("robot1", 9, "camera", None)  # a source that does not know: stamped now
+    assert plain.capture_mono_ns == plain.stamps[-1].mono_ns
