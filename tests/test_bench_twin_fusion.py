@@ -11,6 +11,7 @@ active tracker only), so both answers are for the same frames.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
 from pathlib import Path
@@ -22,11 +23,12 @@ from courtloc.bench_twin import STAGES_BEFORE_CAMERA, deployment_for
 from courtloc.lab.metrics import WRONG_M
 from courtloc.launcher import Supervisor, write_effective_config
 from courtloc.model_client import ModelClient
+from courtloc.sim.render import RenderOptions
 from courtloc.sim.scenarios import scenario
 
 pytestmark = [pytest.mark.integration, pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs ptys")]
 
-SECONDS = 5.0  # the blackout scenario at 5 s: lines in view until 2.0 s, none over [2.0, 3.5)
+SECONDS = 6.0  # the blackout scenario at 6 s: lines in view until 2.4 s (the chain warms up), none over [2.4, 4.2)
 FPS = 30.0
 
 
@@ -41,7 +43,10 @@ def _until_seq(client: BusClient, path: str, seq: int, timeout: float = 60.0) ->
 
 
 def test_fused_pose_stays_valid_through_a_blackout_where_vision_only_goes_invalid(tmp_path: Path) -> None:
-    sc = scenario("blackout", "seed-gazebo", SECONDS)
+    # Clean frames: this is about the odometry's path and the blackout, not about vision under randomised
+    # light (whose occasional 0.2 m glitch the fused tracker takes for a kidnap: README, bench twin --fusion).
+    blackout = scenario("blackout", "seed-gazebo", SECONDS)
+    sc = dataclasses.replace(blackout, sim=blackout.sim.model_copy(update={"render": RenderOptions()}))
     start_s, end_s = sc.blackout_s
     # With the MCU the twin runs in real time: frame k shows sim time >= k / fps (more when frames were
     # missed), so frames up to this one include every blind one; which are blind, their stamps say.
@@ -80,7 +85,11 @@ def test_fused_pose_stays_valid_through_a_blackout_where_vision_only_goes_invali
         poses = _until_seq(client, "infer/pose", truths[last].header.seq)
         shadows = _until_seq(client, "infer/shadow_pose", truths[last].header.seq)
         # The infer stage says how it kept the pose valid: on odometry.
-        client.wait_for("infer/health", lambda h: h.detail.get("fusion.valid_on_odometry", 0) > 0)
+        fused_reasons = sorted({p.reason for p in poses if not p.header.valid})
+        try:
+            client.wait_for("infer/health", lambda h: h.detail.get("fusion.valid_on_odometry", 0) > 0)
+        except AssertionError:
+            raise AssertionError(f"no pose valid on odometry; invalid fused poses' reasons {fused_reasons}") from None
     finally:
         if client is not None:
             client.close()
