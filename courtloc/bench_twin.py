@@ -78,7 +78,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write the README's table rows for this run here (header included)")
     parser.add_argument("--fusion", choices=("auto", "off", "on", "both"), default="auto",
                         help="odometry from the twin's MCU fused in the infer stage: off (vision only), on, or both "
-                             "(one after the other); auto: both for the fusion scenarios (drive, blackout), else off")
+                             "(one after the other); auto: both for the fusion scenarios (drive, drive_clean, "
+                             "blackout, drive_kidnap), else off")
 
 
 def variants(sc, fusion: str) -> list[str]:  # noqa: ANN001

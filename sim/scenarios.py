@@ -107,14 +107,18 @@ def _outage(court: str, seconds: float, seed: int) -> Scenario:
                     _walk(court, seed, randomised_light(), outages_s=[(start, end)]), infer_kill_at_s=kill)
 
 
-def _loop(court: str, seed: int, **extra) -> SimSourceConfig:
+def _loop(court: str, seed: int, render: RenderOptions | None = None, **extra) -> SimSourceConfig:
     return SimSourceConfig(court=court, trajectory="waypoints", waypoints=FUSION_LOOP, speed_mps=WALK_SPEED_MPS,
-                           yaw_rate_rps=FUSION_YAW_RATE_RPS, seed=seed, render=randomised_light(), **extra)
+                           yaw_rate_rps=FUSION_YAW_RATE_RPS, seed=seed, render=render or randomised_light(), **extra)
 
 
 def _drive(court: str, seconds: float, seed: int) -> Scenario:
     return Scenario("drive", "loop through the +x half at 1.5 m/s, randomised light (normal driving)",
                     _loop(court, seed), fusion=True)
+
+
+def _drive_clean(court: str, seconds: float, seed: int) -> Scenario:
+    return Scenario("drive_clean", "as drive, clean frames", _loop(court, seed, render=RenderOptions()), fusion=True)
 
 
 def _blackout(court: str, seconds: float, seed: int) -> Scenario:
@@ -142,6 +146,7 @@ SCENARIOS: dict[str, Callable[[str, float, int], Scenario]] = {
     "minus_x_start": _minus_x_start,
     "outage": _outage,
     "drive": _drive,
+    "drive_clean": _drive_clean,
     "blackout": _blackout,
     "drive_kidnap": _drive_kidnap,
 }
