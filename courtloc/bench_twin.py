@@ -6,6 +6,10 @@ camera's sim source playing the scenario. A bus client records every `infer/pose
 `camera/ground_truth`; the numbers (courtloc/bench_twin_metrics.py) compare each pose with the truth of
 the same frame. The camera starts once the other stages are alive, so sim time 0 is a chain ready to
 take frames; a run lasts `--seconds` of sim time (frames), however slowly the machine renders them.
+
+With fusion (`--fusion`, by default both ways for the fusion scenarios) the camera's sim source also runs
+the twin's MCU (courtloc/sim/twin_mcu.py) on a pty, the shooter bridge opens it as its serial port and
+the infer stage fuses the odometry the bridge publishes; the vision-only run configures none of it.
 """
 from __future__ import annotations
 
@@ -24,17 +28,26 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from courtloc.bench_twin_metrics import Event, PoseSample, TruthSample, twin_metrics
+from courtloc.bench_twin_metrics import (
+    Event,
+    PoseSample,
+    TruthSample,
+    blackout_metrics,
+    kidnap_metrics,
+    twin_metrics,
+)
 from courtloc.common import codec
 from courtloc.common.messages import GroundTruth, Pose
 from courtloc.common.services_table import SERVICES, TOPICS
 from courtloc.launcher import Supervisor, write_effective_config
 from courtloc.services.deployment import DeploymentConfig, load_deployment
 from courtloc.sim.scenarios import SCENARIOS, scenario
+from courtloc.sim.twin_mcu import TwinMcuConfig
 from courtloc.watch import BusWatcher
 
 log = logging.getLogger("courtloc.bench_twin")
 STAGES_BEFORE_CAMERA = ("preprocess", "infer", "shooter_bridge")
+VARIANTS = {"vision_only": "vision only", "fused": "fused"}
 
 
 class BenchError(RuntimeError):
@@ -63,6 +76,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--logs", type=Path, default=None, help="keep the stages' logs here (default: discarded)")
     parser.add_argument("--markdown", type=Path, default=None,
                         help="also write the README's table rows for this run here (header included)")
+    parser.add_argument("--fusion", choices=("auto", "off", "on", "both"), default="auto",
+                        help="odometry from the twin's MCU fused in the infer stage: off (vision only), on, or both "
+                             "(one after the other); auto: both for the fusion scenarios (drive, drive_clean, "
+                             "blackout, drive_kidnap), else off")
+
+
+def variants(sc, fusion: str) -> list[str]:  # noqa: ANN001
+    """The runs of one scenario: "vision_only" and/or "fused"."""
+    if fusion == "auto":
+        fusion = "both" if sc.fusion else "off"
+    return {"off": ["vision_only"], "on": ["fused"], "both": ["vision_only", "fused"]}[fusion]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -76,8 +100,13 @@ def run(args: argparse.Namespace) -> int:
         infer_fields = _parse_fields(args.infer)
         report: dict[str, Any] = {}
         for sc in scenarios:
-            report[sc.name] = run_scenario(sc, args, infer_fields)
-            _print_row(sc.name, report[sc.name])
+            runs = {}
+            for variant in variants(sc, args.fusion):
+                runs[variant] = run_scenario(sc, args, infer_fields, fused=variant == "fused")
+                _print_row(sc.name if len(runs) == 1 and variant == "vision_only" else f"{sc.name}/{variant}",
+                           runs[variant])
+            # One run: the scenario's keys as before (with "fusion" saying which); both: side by side.
+            report[sc.name] = next(iter(runs.values())) if len(runs) == 1 else {"description": sc.description, **runs}
     except (BenchError, ValueError, OSError) as exc:
         if args.verbose:
             raise
@@ -85,12 +114,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"courtloc bench twin: {' '.join(str(exc).split())}", file=sys.stderr)
         return 1
     report["run"] = {"court": args.court, "camera": args.camera, "seconds": args.seconds, "fps": args.fps,
-                     "seed": args.seed, "tell_start": args.tell_start, "scenarios": names,
+                     "seed": args.seed, "tell_start": args.tell_start, "scenarios": names, "fusion": args.fusion,
                      "load_avg": list(os.getloadavg()), "cpus": os.cpu_count(),
                      "command": " ".join(["courtloc", *sys.argv[1:]])}
     text = json.dumps(report, indent=1)
     if args.markdown is not None:
-        args.markdown.write_text(markdown_table(report) + "\n")
+        fused = any(r.get("fusion") == "fused" for _, r in scenario_rows(report))
+        args.markdown.write_text(markdown_table(report) + "\n" + ("\n" + fusion_table(report) + "\n" if fused else ""))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(text + "\n")
@@ -107,8 +137,7 @@ def markdown_table(report: dict[str, Any]) -> str:
     lines = ["| court | scenario | n | mean / median / p95 err (all) m | yaw median deg | valid | "
              "valid mean / p95 m | valid_wrong | recovery mean / max s |", "|---|---|---|---|---|---|---|---|---|"]
     court = report["run"]["court"]
-    for name in report["run"]["scenarios"]:
-        r = report[name]
+    for name, r in scenario_rows(report):
         notes = "".join([f" ({r['events_unrecovered']} unrecovered)" if r["events_unrecovered"] else "",
                          f", {r['recovery_wrong']} first valid wrong" if r["recovery_wrong"] else ""])
         lines.append(
@@ -117,6 +146,41 @@ def markdown_table(report: dict[str, Any]) -> str:
             f"{num(r['valid_fraction'], '{:.1f}', 100)} % | {num(r['valid_mean_err_m'], '{:.2f}')} / "
             f"{num(r['valid_p95_err_m'], '{:.2f}')} | {r['valid_wrong']} | {num(r['recovery_s_mean'], '{:.2f}')} / "
             f"{num(r['recovery_s_max'], '{:.2f}')}{notes} |")
+    return "\n".join(lines)
+
+
+def scenario_rows(report: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    """(row name, result) per run: "blackout (vision only)", "blackout (fused)" for a scenario run both ways."""
+    rows = []
+    for name in report["run"]["scenarios"]:
+        entry = report[name]
+        if any(v in entry for v in VARIANTS):
+            rows += [(f"{name} ({label})", entry[v]) for v, label in VARIANTS.items() if v in entry]
+        else:
+            rows.append((name if entry.get("fusion") != "fused" else f"{name} (fused)", entry))
+    return rows
+
+
+def fusion_table(report: dict[str, Any]) -> str:
+    """The fusion keys of the runs that have them: blackout growth and validity, kidnap noticing."""
+    def num(value: float | None, fmt: str, scale: float = 1.0) -> str:
+        return "-" if value is None else fmt.format(value * scale)
+
+    lines = ["| court | run | mean / p95 err (all) m | valid mean / p95 m | error_growth_m | valid in blackout | "
+             "worst valid err in blackout m | kidnap noticed s | valid > 0.5 m after kidnap |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    court = report["run"]["court"]
+    for name, r in scenario_rows(report):
+        b = r.get("blackout") or {}
+        kidnaps = r.get("kidnaps") or []
+        noticed = ", ".join(num(k["noticed_s"], "{:.2f}") for k in kidnaps) or "-"
+        wrong = ", ".join(str(k["valid_wrong_after"]) for k in kidnaps) or "-"
+        lines.append(
+            f"| {court} | {name} | {num(r['mean_err_m'], '{:.3f}')} / {num(r['p95_err_m'], '{:.3f}')} | "
+            f"{num(r['valid_mean_err_m'], '{:.3f}')} / {num(r['valid_p95_err_m'], '{:.3f}')} | "
+            f"{num(b.get('error_growth_m'), '{:.3f}')} | {num(b.get('valid_fraction_blackout'), '{:.0f}', 100)}"
+            f"{' %' if b.get('valid_fraction_blackout') is not None else ''} | "
+            f"{num(b.get('max_valid_error_blackout_m'), '{:.3f}')} | {noticed} | {wrong} |")
     return "\n".join(lines)
 
 
@@ -149,13 +213,14 @@ def _print_row(name: str, r: dict[str, Any]) -> None:
 
 # ---- one scenario -----------------------------------------------------------------------------------
 def deployment_for(sc, args: argparse.Namespace, port: int, store: Path,  # noqa: ANN001, ANN201
-                   infer_fields: dict[str, Any]):
-    """The base deployment's stage settings with the bench's bus, court and scenario camera."""
+                   infer_fields: dict[str, Any], mcu_link: Path | None = None):
+    """The base deployment's stage settings with the bench's bus, court and scenario camera; with
+    `mcu_link`, the twin's MCU on a pty linked there, the bridge's port and the infer stage's fusion."""
 
     base = load_deployment(args.config).model_dump(mode="json", exclude_unset=True)
     endpoint = f"tcp/127.0.0.1:{port}"
     camera = args.camera or base.get("camera_model")  # the bench's, else the file's, else the court's own
-    sim = sc.sim.model_copy(update={"camera": camera})
+    sim = sc.sim.model_copy(update={"camera": camera, "mcu": None if mcu_link is None else TwinMcuConfig(link=str(mcu_link))})
     if camera is not None:
         base["camera_model"] = camera
     base.update(
@@ -173,6 +238,12 @@ def deployment_for(sc, args: argparse.Namespace, port: int, store: Path,  # noqa
     shooter = base.get("shooter_bridge", {})
     if "target" in shooter:  # the shooter aims at the bench's court, not the file's
         shooter["target"].pop("court", None)
+    # Vision only means no odometry at all, whatever the base file says; fused keeps its [infer.fusion].
+    base["infer"]["fusion"] = {**base["infer"].get("fusion", {}), "enabled": mcu_link is not None}
+    if mcu_link is not None:
+        # The pty appears when the camera (started last) opens its source: retry the port every 0.1 s.
+        base["shooter_bridge"] = {**shooter, "link": {**shooter.get("link", {}), "port": str(mcu_link),
+                                                      "reconnect_initial_s": 0.05, "reconnect_max_s": 0.1}}
     return DeploymentConfig.model_validate(base)
 
 
@@ -268,13 +339,15 @@ def _recorder_class():  # noqa: ANN202 - the class needs zenoh, imported only wh
     return TwinRecorder
 
 
-def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any]) -> dict[str, Any]:  # noqa: ANN001
+def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any],  # noqa: ANN001
+                 fused: bool = False) -> dict[str, Any]:
 
     with tempfile.TemporaryDirectory(prefix="courtloc-twin-") as tmp:
         folder = Path(tmp)
-        log_dir = args.logs / sc.name if args.logs else folder / "logs"
+        log_dir = args.logs / (f"{sc.name}_fused" if fused else sc.name) if args.logs else folder / "logs"
         log_dir.mkdir(parents=True, exist_ok=True)
-        config = deployment_for(sc, args, _free_port(), args.store or folder / "store", infer_fields)
+        config = deployment_for(sc, args, _free_port(), args.store or folder / "store", infer_fields,
+                                mcu_link=folder / "mcu" if fused else None)
         supervisor = Supervisor(config, write_effective_config(config, folder), log_dir)
         recorder = _recorder_class()(config)
         stop = threading.Event()
@@ -311,9 +384,11 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any]) -> 
             stop.set()
             recorder.close()
         summary = recorder.summary(supervisor.restarts(), 0.0)
+        with recorder._lock:  # noqa: SLF001 - the watcher's own lock guards its state
+            health = {name: dict(h.detail) for name, h in recorder.state.health.items()}
     truths = [t for t in recorder.record.truths if t.capture_ns <= end_ns]
     poses = [p for p in recorder.record.poses if p.capture_ns <= end_ns]
-    events = scenario_events(sc, truths, poses, args.fps, kill_ns)
+    events = scenario_events(sc, truths, poses, args.fps, kill_ns, real_time=fused)
     result = twin_metrics(poses, truths, events, end_ns)
     first = min((t.capture_ns for t in truths), default=0)
     last = max((t.capture_ns for t in truths), default=0)
@@ -323,6 +398,18 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any]) -> 
         row["t_s"] = [round((row.pop("start_ns") - first) / 1e9, 3), round((row.pop("end_ns") - first) / 1e9, 3)]
     # Sim time is frames / fps: a camera that cannot render at fps plays the robot in slow motion.
     camera_fps = (len(truths) - 1) / ((last - first) / 1e9) if last > first else None
+    if sc.blackout_s is not None:
+        start_ns, end_ns_blind = (_first_capture(truths, t_s, args.fps, fused) for t_s in sc.blackout_s)
+        if start_ns is not None:
+            result["blackout"] = blackout_metrics(poses, truths, start_ns, end_ns_blind or end_ns)
+    kidnaps = [e.start_ns for e in events if e.kind == "kidnap"]
+    if kidnaps:
+        result["kidnaps"] = kidnap_metrics(poses, truths, kidnaps, end_ns)
+    result["fusion"] = "fused" if fused else "vision_only"
+    if fused:  # what reached the infer stage: its fusion's counters and the bridge's odometry intake
+        result["odometry"] = {stage: {k: v for k, v in health.get(stage, {}).items()
+                                      if k.startswith(("fusion.", "odom_", "mcu_odometry", "mcu_connects"))}
+                              for stage in ("shooter_bridge", "infer")}
     result.update(description=sc.description, frames=len(truths), camera_fps=camera_fps,
                   restarts=summary["restarts_by_process"],
                   stale_or_dropped={name: {"dropped": s["dropped"], "stale": s["stale"]}
@@ -358,25 +445,20 @@ def _last_line(path: Path | None) -> str:
     return lines[-1].strip() if lines else "(no output)"
 
 
-def scenario_events(sc, truths: list, poses: list, fps: float, kill_ns: int | None) -> list:  # noqa: ANN001
+def scenario_events(sc, truths: list, poses: list, fps: float, kill_ns: int | None,  # noqa: ANN001
+                    real_time: bool = False) -> list:
     """Where each recovery window starts: the first pose of the run, the first frame after each kidnap and
     after each outage, and the first pose of the restarted infer process."""
 
     events = []
     if poses:
         events.append(Event("start", min(p.capture_ns for p in poses)))
-    ordered = sorted(truths, key=lambda t: t.seq)
-
-    def first_frame_from(t_s: float) -> int | None:
-        seq = int(math.ceil(t_s * fps - 1e-9))
-        return next((t.capture_ns for t in ordered if t.seq >= seq), None)
-
     for t_s in sc.sim.kidnaps_s:
-        start = first_frame_from(t_s)
+        start = _first_capture(truths, t_s, fps, real_time)
         if start is not None:
             events.append(Event("kidnap", start))
     for _, end_s in sc.sim.outages_s:
-        start = first_frame_from(end_s)
+        start = _first_capture(truths, end_s, fps, real_time)
         if start is not None:
             events.append(Event("outage", start))
     if kill_ns is not None:
@@ -384,6 +466,19 @@ def scenario_events(sc, truths: list, poses: list, fps: float, kill_ns: int | No
         if after:
             events.append(Event("infer_restart", min(after)))
     return events
+
+
+def _first_capture(truths: list, t_s: float, fps: float, real_time: bool = False) -> int | None:  # noqa: ANN001
+    """Capture stamp of the first frame at or after sim time `t_s`: frame seq / fps, or with the twin's MCU
+    (a sim in real time, sim/source.py) the capture stamp since frame 0's."""
+    if real_time:
+        zero = next((t.capture_ns for t in truths if t.seq == 0), None)
+        if zero is None:
+            return None
+        return min((t.capture_ns for t in truths if t.capture_ns >= zero + int(round(t_s * 1e9)) - 1000),
+                   default=None)
+    seq = int(math.ceil(t_s * fps - 1e-9))
+    return min((t.capture_ns for t in truths if t.seq >= seq), default=None)
 
 
 def _free_port() -> int:

@@ -145,3 +145,72 @@ def twin_metrics(poses: list[PoseSample], truths: list[TruthSample], events: lis
         "invalid_reasons": reasons,
         "unmatched_poses": len(poses) - len(matched),
     }
+
+
+def _matched_in_order(poses: list[PoseSample], truths: list[TruthSample]) -> list[tuple[PoseSample, float]]:
+    by_stamp = {t.capture_ns: t for t in truths}
+    pairs = [(p, by_stamp[p.capture_ns]) for p in poses if p.capture_ns in by_stamp]
+    return sorted(((p, math.hypot(p.x - t.x, p.y - t.y)) for p, t in pairs), key=lambda pe: pe[0].capture_ns)
+
+
+def blackout_metrics(poses: list[PoseSample], truths: list[TruthSample], start_ns: int, end_ns: int
+                     ) -> dict[str, Any]:
+    """Vision removed over captures [start_ns, end_ns): how far off is what a consumer that trusts the valid
+    flag holds (the newest valid pose at each blind frame, against that frame's truth)?
+
+    `error_growth_m`: the worst such error during the blackout minus the mean error of the poses in the
+    second before it; `valid_fraction_blackout`; `max_valid_error_blackout_m` (the worst pose reported
+    VALID during it: the number that must stay small); `blackout_frames` (truths in the window)."""
+    matched = _matched_in_order(poses, truths)
+    truth_at = {t.capture_ns: t for t in truths}
+    before = [e for p, e in matched if start_ns - 1_000_000_000 <= p.capture_ns < start_ns and p.valid]
+    held: PoseSample | None = None
+    held_err: list[float] = []
+    blind: list[tuple[PoseSample, float]] = []
+    for pose, err in matched:
+        if pose.capture_ns >= end_ns:
+            break
+        if pose.valid:
+            held = pose
+        if pose.capture_ns < start_ns:
+            continue
+        blind.append((pose, err))
+        truth = truth_at[pose.capture_ns]
+        held_err.append(math.inf if held is None else math.hypot(held.x - truth.x, held.y - truth.y))
+    valid_err = [e for p, e in blind if p.valid]
+    worst = max(held_err) if held_err else None
+    return {
+        "blackout_frames": sum(start_ns <= t.capture_ns < end_ns for t in truths),
+        "blackout_poses": len(blind),
+        "error_before_m": float(np.mean(before)) if before else None,
+        "error_growth_m": None if worst is None or not before or not math.isfinite(worst)
+        else float(worst - np.mean(before)),
+        "held_error_max_m": None if worst is None or not math.isfinite(worst) else float(worst),
+        "valid_fraction_blackout": float(np.mean([p.valid for p, _ in blind])) if blind else None,
+        "max_valid_error_blackout_m": float(max(valid_err)) if valid_err else None,
+    }
+
+
+def kidnap_metrics(poses: list[PoseSample], truths: list[TruthSample], kidnaps_ns: list[int], end_ns: int,
+                   wrong_m: float = WRONG_M) -> list[dict[str, Any]]:
+    """Per kidnap (capture of the first frame after it), until the next one or `end_ns`: `noticed_s` (to
+    the publication of the first pose captured since that is marked invalid; None: never),
+    `valid_wrong_after` (valid poses more than `wrong_m` off) and `valid_before_noticed` (valid poses
+    published before it was noticed)."""
+    matched = _matched_in_order(poses, truths)
+    ordered = sorted(kidnaps_ns)
+    rows = []
+    for i, start in enumerate(ordered):
+        horizon = ordered[i + 1] if i + 1 < len(ordered) else end_ns
+        window = [(p, e) for p, e in matched if start <= p.capture_ns < horizon]
+        first_invalid = next((p for p, _ in window if not p.valid), None)
+        last_before = next((p for p, _ in reversed(matched) if p.capture_ns < start), None)
+        rows.append({
+            "valid_before": None if last_before is None else last_before.valid,  # False: nothing to notice
+            "noticed_s": None if first_invalid is None else max(first_invalid.published_ns - start, 0) / 1e9,
+            "valid_before_noticed": sum(p.valid for p, _ in window
+                                        if first_invalid is None or p.capture_ns < first_invalid.capture_ns),
+            "valid_wrong_after": sum(p.valid and e > wrong_m for p, e in window),
+            "poses": len(window),
+        })
+    return rows

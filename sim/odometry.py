@@ -58,16 +58,17 @@ class OdometrySimulator:
         self._slip_until = -math.inf
 
     def _sample(self, i: int, t0: float, t1: float) -> OdometrySample:
-        cfg = self.config
         a, b = self.trajectory.pose_at(t0), self.trajectory.pose_at(t1)
-        dt = t1 - t0
-        c, s = math.cos(a[2]), math.sin(a[2])
-        dx, dy = b[0] - a[0], b[1] - a[1]
-        vx, vy = (c * dx + s * dy) / dt, (-s * dx + c * dy) / dt
-        wz = wrap_angle(b[2] - a[2]) / dt
+        vx, vy, wz = body_velocity(a, b, t1 - t0)
+        return self.measure(i, vx, vy, wz, t1 - t0, t1)
+
+    def measure(self, seq: int, vx: float, vy: float, wz: float, dt: float, t_end_s: float) -> OdometrySample:
+        """The frame the MCU sends for a window of `dt` seconds ending at host time `t_end_s` in which the
+        robot truly moved at body velocity (vx, vy) and yaw rate wz: the wheels' and the gyro's errors added."""
+        cfg = self.config
         if cfg.slip_rate_hz > 0 and self.rng.random() < cfg.slip_rate_hz * dt:
-            self._slip_until = t1 + cfg.slip_duration_s
-        slipping = t1 < self._slip_until
+            self._slip_until = t_end_s + cfg.slip_duration_s
+        slipping = t_end_s < self._slip_until
         scale = cfg.wheel_scale * (1 + (cfg.slip_over_read if slipping else 0.0))
         gyro = wz + cfg.gyro_bias_rad_s + self.rng.normal(0, cfg.gyro_noise_rad_s)
         saturated = abs(gyro) > cfg.gyro_full_scale_rad_s
@@ -75,9 +76,9 @@ class OdometrySimulator:
         if saturated:
             flags |= OdomFlag.GYRO_SATURATED
             gyro = math.copysign(cfg.gyro_full_scale_rad_s, gyro)
-        mcu_s = cfg.clock_offset_s + t1 * (1 + cfg.clock_drift_ppm * 1e-6)
+        mcu_s = cfg.clock_offset_s + t_end_s * (1 + cfg.clock_drift_ppm * 1e-6)
         return OdometrySample(
-            seq=i & 0xFFFF, mcu_time_us=int(round(mcu_s * 1e6)) & 0xFFFFFFFF,
+            seq=seq & 0xFFFF, mcu_time_us=int(round(mcu_s * 1e6)) & 0xFFFFFFFF,
             vx_m_s=round(vx * scale + self.rng.normal(0, cfg.speed_noise_m_s), 3),
             vy_m_s=round(vy * scale + self.rng.normal(0, cfg.speed_noise_m_s), 3),
             wz_wheels_rad_s=round(wz * scale + self.rng.normal(0, cfg.wheel_yaw_noise_rad_s), 3),
@@ -102,3 +103,11 @@ class OdometrySimulator:
             message = self.intake.accept(sample, ns, ns)
             if message is not None:
                 yield Delivered(at_s=arrive, message=message)
+
+
+def body_velocity(a: tuple[float, float, float], b: tuple[float, float, float],
+                  dt: float) -> tuple[float, float, float]:
+    """The mean body-frame velocity (forward, left) and yaw rate that take pose `a` to pose `b` in `dt`."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    return (c * dx + s * dy) / dt, (-s * dx + c * dy) / dt, wrap_angle(b[2] - a[2]) / dt

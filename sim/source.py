@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from pathlib import Path
 from typing import Literal, Optional
 
@@ -15,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from courtloc.sim.render import Renderer, RenderOptions
 from courtloc.sim.trajectory import CsvTrajectory, KidnapTrajectory, RandomWalkTrajectory, WaypointTrajectory
+from courtloc.sim.twin_mcu import TwinMcu, TwinMcuConfig
 from courtloc.world.camera import Pose, load_camera
 from courtloc.world.court import load_court
 
@@ -47,6 +49,8 @@ class SimSourceConfig(BaseModel):
                                                  "shows nothing usable; the robot keeps moving")
     outage: Literal["dark", "blocked"] = Field("dark", description="dark: lens capped (black + sensor noise); "
                                                "blocked: something right in front of the lens")
+    mcu: Optional[TwinMcuConfig] = Field(None, description="run the robot's MCU too: wheel odometry and gyro of "
+                                         "this trajectory on a pty at `mcu.link` (see twin_mcu.py)")
 
     @field_validator("start")
     @classmethod
@@ -75,6 +79,9 @@ class SimSource:
         self.frame_index = 0
         self._renderer = None
         self._trajectory = None
+        self._mcu: TwinMcu | None = None
+        self._t0_ns: int | None = None  # with the MCU: the host time of sim time 0 (the first read)
+        self.taken_mono_ns: int | None = None  # with the MCU: the instant the last frame shows
 
     # ---- lifecycle ------------------------------------------------------------------------------
     def open(self) -> "SimSource":
@@ -85,10 +92,17 @@ class SimSource:
         self._trajectory = self._build_trajectory(court)
         self._renderer = Renderer(court, camera)
         self.frame_index = 0
+        self._t0_ns = self.taken_mono_ns = None
+        if cfg.mcu is not None:
+            self._mcu = TwinMcu(cfg.mcu, self._trajectory, cfg.kidnaps_s, seed=cfg.seed)
+            self._mcu.start()
         log.info("sim source: court %s, camera %s, %s trajectory at %.1f fps", court.name, camera.name, cfg.trajectory, cfg.fps)
         return self
 
     def close(self) -> None:
+        if self._mcu is not None:
+            self._mcu.stop()
+            self._mcu = None
         self._renderer = None
         self._trajectory = None
 
@@ -110,30 +124,41 @@ class SimSource:
             raise RuntimeError("SimSource is not open: call open() first")
         return self._trajectory.pose_at(index / self.config.fps)
 
-    def _shutter_open_pose(self, index: int, pose: Pose) -> Pose | None:
+    def _shutter_open_pose(self, t: float, pose: Pose) -> Pose | None:
         """Where the robot was when the shutter opened (None: no motion blur, or a teleport in between)."""
         exposure = self.config.render.motion_blur_s
         if exposure <= 0:
             return None
         assert self._trajectory is not None
-        start = self._trajectory.pose_at(max(index / self.config.fps - exposure, 0.0))
+        start = self._trajectory.pose_at(max(t - exposure, 0.0))
         # A teleport inside the exposure is not motion: the frame shows where the robot is now.
         return start if math.hypot(start[0] - pose[0], start[1] - pose[1]) < 0.5 else None
 
     def read(self) -> tuple[np.ndarray, tuple[float, float, float]]:
-        """The next frame (BGR uint8) and the true pose (x, y, yaw) it shows; time advances 1/fps."""
+        """The next frame (BGR uint8) and the true pose (x, y, yaw) it shows; time advances 1/fps, or
+        with the MCU runs in real time (the frame shows the instant of the read, `taken_mono_ns`)."""
         if self._renderer is None:
             raise RuntimeError("SimSource is not open: call open() first")
         index = self.frame_index
-        pose = self.pose_at_index(index)
+        t = index / self.config.fps
+        if self._mcu is not None:
+            # The wheels drive in host time, so the frames must too: a frame shows the robot where it is
+            # at the read, and a camera that cannot keep its rate misses moments instead of slowing it.
+            self.taken_mono_ns = time.monotonic_ns()
+            if self._t0_ns is None:
+                self._t0_ns = self.taken_mono_ns
+                self._mcu.clock.start(self._t0_ns)
+            t = (self.taken_mono_ns - self._t0_ns) / 1e9
+        assert self._trajectory is not None
+        pose = self._trajectory.pose_at(t)
         if not self.court.contains(pose[0], pose[1]):
             raise ValueError(f"frame {index}: pose {pose} lies outside court {self.court.name!r}")
         # Each frame's randomisation depends only on (seed, frame index): reproducible from any start.
         rng = np.random.default_rng([self.config.seed, index])
-        if self.config.in_outage(index / self.config.fps):
+        if self.config.in_outage(t):
             frame = self._outage_frame(rng)
         else:
-            frame = self._renderer.render(pose, self.config.render, rng, self._shutter_open_pose(index, pose))
+            frame = self._renderer.render(pose, self.config.render, rng, self._shutter_open_pose(t, pose))
         self.frame_index += 1
         return frame, (float(pose[0]), float(pose[1]), float(pose[2]))
 

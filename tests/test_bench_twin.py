@@ -10,8 +10,15 @@ from pathlib import Path
 
 import pytest
 
-from courtloc.bench_twin import scenario_events
-from courtloc.bench_twin_metrics import Event, PoseSample, TruthSample, twin_metrics
+from courtloc.bench_twin import scenario_events, scenario_rows, variants
+from courtloc.bench_twin_metrics import (
+    Event,
+    PoseSample,
+    TruthSample,
+    blackout_metrics,
+    kidnap_metrics,
+    twin_metrics,
+)
 from courtloc.sim.scenarios import SCENARIOS, scenario
 
 MS = 1_000_000
@@ -194,3 +201,48 @@ def test_a_stage_that_cannot_start_fails_the_bench_at_once_in_one_line(tmp_path:
     bad = subprocess.run([sys.executable, "-m", "courtloc", "bench", "twin", "--scenario", "clean", "--seconds", "1",
                           "--infer", "threads=0"], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 1 and bad.stderr.strip().count("\n") == 0 and "infer.threads" in bad.stderr
+
+
+def test_blackout_growth_is_what_a_consumer_trusting_the_flag_holds():
+    truths = _truths(40)  # the robot moves 1 m per frame (100 ms)
+    start, end = 100 * MS * 20, 100 * MS * 30  # frames 20..29 are blind
+    # Vision only: valid with 2 cm error before, invalid while blind (its x is a placeholder).
+    vision = [_pose(k, 0.02, True) for k in range(20)] + [_pose(k, -float(k), False) for k in range(20, 30)]
+    out = blackout_metrics(vision, truths, start, end)
+    assert out["valid_fraction_blackout"] == 0.0 and out["max_valid_error_blackout_m"] is None
+    # The newest valid pose is frame 19's (2 cm ahead): by frame 29 the robot is 9.98 m beyond it.
+    assert out["held_error_max_m"] == pytest.approx(9.98) and out["error_growth_m"] == pytest.approx(9.96)
+    assert out["error_before_m"] == pytest.approx(0.02) and out["blackout_frames"] == 10
+    # Fused: valid throughout, the error growing to 7 cm at the end of the blackout.
+    fused = [_pose(k, 0.02, True) for k in range(20)] + [_pose(k, 0.02 + 0.005 * (k - 19), True) for k in range(20, 30)]
+    out = blackout_metrics(fused, truths, start, end)
+    assert out["valid_fraction_blackout"] == 1.0
+    assert out["error_growth_m"] == pytest.approx(0.05) and out["max_valid_error_blackout_m"] == pytest.approx(0.07)
+
+
+def test_a_kidnap_is_noticed_at_the_first_invalid_pose_and_wrong_valid_ones_are_counted():
+    truths = _truths(30)
+    kidnap = 100 * MS * 10
+    poses = ([_pose(k, 0.0, True) for k in range(10)] + [_pose(k, 2.0, True) for k in (10, 11)]
+             + [_pose(k, 2.0, False) for k in range(12, 20)] + [_pose(k, 0.1, True) for k in range(20, 30)])
+    (row,) = kidnap_metrics(poses, truths, [kidnap], 100 * MS * 30)
+    assert row["valid_before"] is True
+    assert row["noticed_s"] == pytest.approx(0.23)  # frame 12, 200 ms after the kidnap, published 30 ms later
+    assert row["valid_before_noticed"] == 2 and row["valid_wrong_after"] == 2 and row["poses"] == 20
+    never = kidnap_metrics([_pose(k, 2.0, True) for k in range(30)], truths, [kidnap], 100 * MS * 30)
+    assert never[0]["noticed_s"] is None and never[0]["valid_wrong_after"] == 20
+
+
+def test_fusion_scenarios_run_both_ways_by_default_and_report_side_by_side():
+    assert variants(scenario("blackout", "seed-gazebo", 30.0), "auto") == ["vision_only", "fused"]
+    assert variants(scenario("clean", "seed-gazebo", 30.0), "auto") == ["vision_only"]
+    assert variants(scenario("kidnap", "seed-gazebo", 30.0), "both") == ["vision_only", "fused"]
+    assert variants(scenario("blackout", "seed-gazebo", 30.0), "off") == ["vision_only"]
+    blackout = scenario("blackout", "seed-gazebo", 30.0)
+    assert blackout.blackout_s == (3.0, 5.0) and blackout.sim.outages_s == [(3.0, 5.0)]
+    assert scenario("blackout", "seed-gazebo", 5.0).blackout_s == (2.0, 3.5)  # a short run: earlier, shorter
+    report = {"run": {"scenarios": ["clean", "blackout", "kidnap"]}, "clean": {"fusion": "vision_only"},
+              "blackout": {"description": "", "vision_only": {"a": 1}, "fused": {"a": 2}},
+              "kidnap": {"fusion": "fused"}}
+    assert [name for name, _ in scenario_rows(report)] == ["clean", "blackout (vision only)", "blackout (fused)",
+                                                             "kidnap (fused)"]

@@ -28,6 +28,17 @@ def encode_frame(frame: np.ndarray, header: Header, encoding: str, jpeg_quality:
     return Frame(header=header, width=width, height=height, encoding=encoding, data=b""), data
 
 
+def capture_header(robot_id: str, seq: int, stage: str, taken_mono_ns: int | None) -> Header:
+    """The frame's header, stamped now or, when the source knows it, at the instant the frame shows (the
+    twin renders the robot's pose of that instant); a claimed instant from the future is ignored."""
+    header = Header.now(robot_id, seq, stage)
+    if taken_mono_ns is not None and taken_mono_ns <= header.capture_mono_ns:
+        earlier = header.capture_mono_ns - taken_mono_ns
+        header.capture_mono_ns -= earlier
+        header.capture_wall_ns -= earlier
+    return header
+
+
 class CameraService(Service):
     name = "camera"
 
@@ -88,7 +99,7 @@ class CameraService(Service):
         return capture
 
     def _publish_capture(self, capture: Capture) -> None:
-        header = Header.now(self.robot_id, self._seq, self.name)
+        header = capture_header(self.robot_id, self._seq, self.name, capture.taken_mono_ns)
         header.valid = True
         self._seq += 1
         start = time.perf_counter_ns()

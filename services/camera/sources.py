@@ -31,6 +31,7 @@ class SourceError(RuntimeError):
 class Capture:
     frame: np.ndarray  # BGR uint8, H x W x 3
     truth: tuple[float, float, float] | None  # x, y, yaw when the source knows it
+    taken_mono_ns: int | None = None  # when the frame was taken (monotonic), when the source knows it better than now
 
 
 class FrameSource(Protocol):
@@ -165,7 +166,7 @@ class SimFrameSource:
 
     def read(self, out: np.ndarray | None = None) -> Capture:
         frame, pose = self._sim.read()
-        return Capture(frame, pose)
+        return Capture(frame, pose, self._sim.taken_mono_ns)
 
     def close(self) -> None:
         self._sim.close()

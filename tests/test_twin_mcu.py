@@ -1,0 +1,97 @@
+"""The twin's MCU: its clock follows the camera's frames, its wheels do not feel kidnaps, and the bridge's
+own link reads its ODOMETRY frames off the pty and gets a STATUS for each of its frames."""
+from __future__ import annotations
+
+import math
+import os
+import time
+from pathlib import Path
+
+import pytest
+
+from courtloc.services.shooter_bridge.config import LinkConfig
+from courtloc.services.shooter_bridge.link import McuLink
+from courtloc.services.shooter_bridge.protocol import StatusFlag
+from courtloc.sim.odometry import OdometrySimConfig
+from courtloc.sim.trajectory import WaypointTrajectory
+from courtloc.sim.twin_mcu import SimClock, TwinMcu, TwinMcuConfig, felt_motion
+
+LOOP = WaypointTrajectory([(0.5, -2.0, 0.2), (4.5, -1.0, 0.9), (4.0, 2.5, 2.4)], speed=1.5, yaw_rate=1.0)
+
+
+def test_sim_clock_is_host_time_since_the_first_frame():
+    clock = SimClock()
+    assert clock.at(5_000_000_000) == 0.0  # before the first frame the robot stands at the start
+    clock.start(5_000_000_000)
+    assert clock.at(4_000_000_000) == 0.0 and clock.at(6_500_000_000) == pytest.approx(1.5)
+
+
+@pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs ptys")
+def test_the_twin_camera_stamps_frames_with_the_instant_they_show(tmp_path: Path):
+    from courtloc.sim.source import SimSource, SimSourceConfig
+
+    config = SimSourceConfig(trajectory="waypoints", waypoints=[[0.5, -2.0, 0.2], [4.5, -1.0, 0.9]], speed_mps=1.5,
+                             mcu=TwinMcuConfig(link=str(tmp_path / "mcu")))
+    with SimSource(config) as source:
+        _, first = source.read()
+        t0 = source.taken_mono_ns
+        time.sleep(0.05)  # the robot drives on in host time between reads (no synchronisation: just a gap)
+        _, second = source.read()
+        elapsed = (source.taken_mono_ns - t0) / 1e9
+        assert elapsed >= 0.05
+        expected = WaypointTrajectory(config.waypoints, 1.5, config.yaw_rate_rps).pose_at(elapsed)
+        assert second == pytest.approx(expected) and first == pytest.approx((0.5, -2.0, 0.2))
+        assert (tmp_path / "mcu").is_symlink()
+    assert not (tmp_path / "mcu").exists()
+
+
+def test_the_wheels_do_not_feel_a_kidnap():
+    class Teleported:  # drives ahead at 1 m/s; at t = 1 s it is put down elsewhere, turned by 1 rad
+        def pose_at(self, t: float) -> tuple[float, float, float]:
+            if t < 1.0:
+                return t, 0.0, 0.0
+            return 5.0 + (t - 1.0) * math.cos(1.0), 3.0 + (t - 1.0) * math.sin(1.0), 1.0
+
+    forward, left, turn = felt_motion(Teleported(), [1.0], 0.95, 1.05)
+    assert forward == pytest.approx(0.1, abs=1e-5) and left == pytest.approx(0.0, abs=1e-9)
+    assert turn == pytest.approx(0.0, abs=1e-9)
+    assert felt_motion(Teleported(), [], 0.95, 1.05)[2] == pytest.approx(1.0)  # unless told it was a teleport
+
+
+@pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs ptys")
+def test_the_bridge_link_reads_the_twin_mcu_off_its_pty(tmp_path: Path):
+    quiet = OdometrySimConfig(speed_noise_m_s=0.0, wheel_yaw_noise_rad_s=0.0, gyro_noise_rad_s=0.0,
+                              gyro_bias_rad_s=0.0, slip_rate_hz=0.0)
+    mcu = TwinMcu(TwinMcuConfig(link=str(tmp_path / "mcu"), odometry=quiet), LOOP, [])
+    samples = []
+    mcu.start()
+    link = McuLink(LinkConfig(port=str(tmp_path / "mcu"), heartbeat_s=0.05),
+                   on_odometry=lambda sample, received_ns: samples.append(sample))
+    try:
+        assert (tmp_path / "mcu").is_symlink()
+        link.start()
+        # Odometry flows once the MCU hears the bridge (its heartbeats); each is answered with a STATUS.
+        assert link.wait_until(lambda lk: lk.stats.odometry_frames >= 20 and lk.stats.status_frames >= 2, 20.0)
+        assert link.last_status is not None and link.last_status.flags & StatusFlag.HOLDING
+        # No frame shown yet: the robot stands at the start, the wheels read nothing.
+        assert all(s.vx_m_s == 0.0 and s.vy_m_s == 0.0 and s.wheels_valid and s.gyro_valid for s in samples)
+        assert [s.seq for s in samples] == list(range(samples[0].seq, samples[0].seq + len(samples)))
+        assert link.stats.bad_odometry == 0
+    finally:
+        link.stop()
+        mcu.stop()
+    assert not (tmp_path / "mcu").exists()
+
+
+def test_the_camera_stamps_a_frame_at_the_instant_its_source_says():
+    from courtloc.services.camera.service import capture_header
+
+    taken = time.monotonic_ns() - 12_000_000  # rendered 12 ms ago
+    header = capture_header("robot1", 7, "camera", taken)
+    assert header.capture_mono_ns == taken and header.seq == 7
+    assert header.stamps[-1].mono_ns - header.capture_mono_ns >= 12_000_000  # published after it was taken
+    assert header.stamps[-1].wall_ns - header.capture_wall_ns == header.stamps[-1].mono_ns - taken
+    future = capture_header("robot1", 8, "camera", time.monotonic_ns() + 10**9)  # a claim from the future
+    assert future.capture_mono_ns == future.stamps[-1].mono_ns
+    plain = capture_header("robot1", 9, "camera", None)  # a source that does not know: stamped now
+    assert plain.capture_mono_ns == plain.stamps[-1].mono_ns
