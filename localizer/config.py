@@ -122,6 +122,9 @@ class AcquireConfig(BaseModel):
                                    "explained by it")
     lost_std_m: float = Field(0.5, gt=0, description="a lost track's pose is a prior at least this wide (a track "
                               "dropped after degenerate views can sit on a parallel line 1.85 m away, its std unaware)")
+    lost_yaw_std_deg: float = Field(10.0, gt=0, description="... and its heading a prior at least this wide (a "
+                                    "gyro-fused track knows its yaw to a fraction of a degree, so a vision fix a few "
+                                    "degrees off was never explained by it and the track never came back)")
     decide_chi2: float = Field(9.0, gt=0, description="the hypothesis a pose prior decides for must lie within this "
                                "d^2 of it (3 sigma): farther, the truth may be a pose the search could not pin down")
     kidnap_frames: int = Field(15, ge=1, description="frames a lost track's pose must explain no hypothesis before "

@@ -137,7 +137,8 @@ class GeometricLocalizer:
         """A lost track's last pose as the prior of the acquisition after it."""
         return acquire.Prior(source="track", pose=state.pose,
                              std_m=max(state.position_std_m, self.config.acquire.lost_std_m),
-                             yaw_std_rad=math.sqrt(max(float(state.cov[2, 2]), 0.0)), t=state.t)
+                             yaw_std_rad=max(math.sqrt(max(float(state.cov[2, 2]), 0.0)),
+                                             math.radians(self.config.acquire.lost_yaw_std_deg)), t=state.t)
 
     def _step(self, hits: ProjectedHits, state: motion.MotionState, t: float | None) -> TrackStep:
         mcfg = self.config.motion
