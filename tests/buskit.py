@@ -213,9 +213,12 @@ class BusClient:
         self.session.close()
 
 
-def write_config(path: Path, port: int, body: str = "", robot_id: str = "robot1", zenoh_extra: str = "") -> Path:
-    """A deployment file whose stages connect to the test router on `port`; quick reconnects."""
-    path.write_text(f'robot_id = "{robot_id}"\n[zenoh]\nconnect = ["{endpoint(port)}"]\n'
+def write_config(path: Path, port: int, body: str = "", robot_id: str = "robot1", zenoh_extra: str = "",
+                 health_period_s: float | None = None) -> Path:
+    """A deployment file whose stages connect to the test router on `port`; quick reconnects. health_period_s:
+    for a test that waits on health reports, a short period makes each wait short (counts are what it checks)."""
+    health = "" if health_period_s is None else f"health_period_s = {health_period_s:g}\n"
+    path.write_text(f'robot_id = "{robot_id}"\n{health}[zenoh]\nconnect = ["{endpoint(port)}"]\n'
                     f'open_retry_s = 0.1\nopen_retry_max_s = 0.3\n{zenoh_extra}\n{body}\n')
     return path
 

@@ -127,7 +127,7 @@ def _frame_payload(**fields: object) -> bytes:
 def test_preprocess_process_counts_every_hostile_frame_by_reason_and_keeps_working(tmp_path: Path) -> None:
     port = free_port()
     router = start_router(port)
-    config = write_config(tmp_path / "deploy.toml", port)
+    config = write_config(tmp_path / "deploy.toml", port, health_period_s=0.2)  # each step waits for a report
     client = BusClient(port)
     client.subscribe("preprocess/health")
     client.subscribe("preprocess/edges")
@@ -183,7 +183,8 @@ def test_handler_exceptions_are_counted_and_logged_rate_limited(tmp_path: Path) 
     frames = TwinFrames([(2.0, -1.5, 0.4)])
     port = free_port()
     router = start_router(port)
-    config = write_config(tmp_path / "deploy.toml", port, f'[infer]\nstore = "{tmp_path / "store"}"\n')
+    config = write_config(tmp_path / "deploy.toml", port, f'[infer]\nstore = "{tmp_path / "store"}"\n',
+                          health_period_s=0.2)
     client = BusClient(port)
     client.subscribe("infer/health")
     stage = start_stage("infer", config)
