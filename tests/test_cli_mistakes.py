@@ -4,13 +4,13 @@ entry point, its exit code, the commands that join a bus and leave zenoh's threa
 through `courtloc.cli.exit_status`, the path the entry point takes up to its exit, in this process."""
 from __future__ import annotations
 
-import logging
 import subprocess
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
 from buskit import PYTHON, endpoint, free_port
+from cli_in_process import Finished, courtloc_in_process
 
 # One or more per verb and per kind of mistake. (verb words and arguments, a
 # word the line must contain). {tmp}, {data}, {nobody}, {five}, {cut}, {notonnx}, {text} are filled in below:
@@ -94,24 +94,8 @@ def _courtloc(argv: list[str]) -> subprocess.CompletedProcess:
     return subprocess.run([*PYTHON, *argv], capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
 
 
-def _in_process(argv: list[str], capsys: pytest.CaptureFixture[str],
-                caplog: pytest.LogCaptureFixture) -> tuple[int, str]:
-    """(exit code, stderr) of `courtloc argv` as the entry point would end: a log record at WARNING or above
-    would be a line on the process's stderr (main's basicConfig), so it counts as one here too; an exception
-    out of main would be a traceback."""
-    from courtloc.cli import exit_status
-
-    capsys.readouterr()
-    caplog.clear()
-    try:
-        code = exit_status(argv)
-    except Exception as exc:  # noqa: BLE001 - a bug: the process would end with its traceback
-        code, err = 1, f"Traceback (in process): {type(exc).__name__}: {exc}\n"
-    else:
-        err = capsys.readouterr().err
-    logged = "".join(f"{record.levelname} {record.name}: {record.getMessage()}\n"
-                     for record in caplog.records if record.levelno >= logging.WARNING)
-    return code, logged + err
+def _answer(done: subprocess.CompletedProcess | Finished) -> tuple[int, str]:
+    return done.returncode, done.stderr
 
 
 def test_every_mistake_is_one_line_and_a_failure(places: dict[str, str], capsys: pytest.CaptureFixture[str],
@@ -120,10 +104,10 @@ def test_every_mistake_is_one_line_and_a_failure(places: dict[str, str], capsys:
     cases = [(line in AS_PROCESS, line.format(**places).split(), word.format(**places)) for line, word in MISTAKES]
     with ThreadPoolExecutor(max_workers=3) as pool:  # the processes run while the rest run here
         processes = {id(argv): pool.submit(_courtloc, argv) for as_process, argv, _ in cases if as_process}
-        answers = {id(argv): _in_process(argv, capsys, caplog) for as_process, argv, _ in cases if not as_process}
+        answers = {id(argv): _answer(courtloc_in_process(argv, capsys, caplog))
+                   for as_process, argv, _ in cases if not as_process}
         for key, future in processes.items():
-            done = future.result()
-            answers[key] = (done.returncode, done.stderr)
+            answers[key] = _answer(future.result())
     wrong = []
     for _, argv, word in cases:
         code, stderr = answers[id(argv)]
