@@ -80,6 +80,7 @@ class ProcessSampler:
 
 
 STAGE_MODULE_PREFIX = "courtloc.services."
+ROUTER_MODULE = "courtloc.router_main"
 
 
 def child_processes(parent: int) -> dict[str, int]:
@@ -98,7 +99,7 @@ def child_processes(parent: int) -> dict[str, int]:
         stage = next((a.rsplit(".", 1)[1] for a in argv if a.startswith(STAGE_MODULE_PREFIX)), None)
         if stage is not None:  # a stage runs as its own entry point, `python -m courtloc.services.<stage>`
             found[stage] = int(entry.name)
-        elif "router" in argv:
+        elif ROUTER_MODULE in argv or "router" in argv:  # the launcher's own (stage_cli.router_argv), or the CLI's
             found["router"] = int(entry.name)
     return found
 

@@ -31,10 +31,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     run.set_defaults(func=run_stage)
 
     router = sub.add_parser("router", help="run a Zenoh router in this process")
+    add_router_arguments(router)
+    router.set_defaults(func=run_router)
+
+
+def add_router_arguments(router: argparse.ArgumentParser) -> None:
+    """The options of `courtloc router` (also of `python -m courtloc.router_main`, the same router)."""
     router.add_argument("--listen", action="append", default=None,
                         help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
     router.add_argument("--config", type=Path, default=None, help="deployment TOML: takes [router] listen")
-    router.set_defaults(func=run_router)
+
+
+def router_argv(listen: list[str], config: Path | None) -> list[str]:
+    """The command line of a router process: `courtloc router` through its own entry point, which loads only
+    the router (courtloc.router_main), so a router that died is back sooner."""
+    return [sys.executable, "-m", "courtloc.router_main", *[a for ep in listen for a in ("--listen", ep)],
+            *(["--config", str(config)] if config is not None else [])]
 
 
 def stage_argv(name: str, config: Path | None, verbose: int = 0, timeout_s: float | None = None) -> list[str]:
