@@ -21,7 +21,7 @@ import zenoh
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.services_table import TOPICS, all_liveliness_key, service_of_liveliness_key
-from courtloc.stage_cli import stage_argv
+from courtloc.stage_cli import router_argv, stage_argv
 
 PYTHON = [sys.executable, "-m", "courtloc"]
 
@@ -107,7 +107,9 @@ class Proc:
 
 
 def start_router(port: int) -> Proc:
-    router = Proc([*PYTHON, "router", "--listen", endpoint(port)]).start()
+    """`courtloc router --listen EP` as the launcher starts it (router_argv: the same run_router without the
+    rest of the CLI's imports); the `courtloc router` command itself: test_placement_two_hosts, test_security_*."""
+    router = Proc(router_argv([endpoint(port)], None)).start()
     router.wait_line("router listening")
     return router
 
