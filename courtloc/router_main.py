@@ -1,6 +1,7 @@
 """`python -m courtloc.router_main [--listen EP] [--config FILE]`: `courtloc router` (the same `run_router`)
 without loading the rest of the CLI, whose sub-commands import most of the product (measured: importing
-courtloc.cli takes 1.30 s, courtloc.stage_cli 0.91 s). For callers that start routers often: the tests."""
+courtloc.cli takes 1.30 s, courtloc.stage_cli 0.91 s). The launcher starts (and restarts) its router this way
+(stage_cli.router_argv), and so do the tests."""
 from __future__ import annotations
 
 import argparse
