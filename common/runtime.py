@@ -48,6 +48,7 @@ class Service:
         self._inbox = LatestInbox()
         self._started = time.monotonic()
         self._rate_log = RateLimitedLog(self.log)
+        self.health_period_s = HEALTH_PERIOD_S  # the deployment's health_period_s (stage_main sets it)
         self.frames_in = 0
         self.frames_out = 0
         self.stale = 0
@@ -220,7 +221,7 @@ class Service:
                 self.record_latency(time.perf_counter_ns() - start)
 
     def _health_loop(self) -> None:
-        while not self.stop_event.wait(HEALTH_PERIOD_S):
+        while not self.stop_event.wait(self.health_period_s):
             try:
                 self._publishers[HEALTH_TOPICS[self.name].path].put(codec.encode(self.health()))
             except Exception:  # health must never take the service down

@@ -36,7 +36,14 @@ from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.limits import MAX_CHUNK_BYTES
 from courtloc.common.messages import Header, Health, Pose, ShotSolution
-from courtloc.common.services_table import CONTROLS, SERVICES, TOPICS, all_health_key
+from courtloc.common.services_table import (
+    CONTROLS,
+    SERVICES,
+    TOPICS,
+    all_health_key,
+    all_liveliness_key,
+    service_of_liveliness_key,
+)
 
 HOSTILE_SEQ = 1 << 40  # hostile messages that must never come out valid carry seq >= this
 UNCHECKED_SEQ = 1 << 39  # mutations that may still be legitimate messages (not counted either way)
@@ -332,13 +339,18 @@ def _fuzz(args: argparse.Namespace, session: zenoh.Session, seen: Observed, up: 
             if solution.command == "SET_RPM" and solution.header.seq in seen.must_not_be_valid:
                 seen.wrong_set_rpm += 1
 
+    reports: dict[str, int] = {}
+    reported = threading.Condition(seen.lock)
+
     def on_health(sample: Any) -> None:
         try:
             health = codec.decode(bytes(sample.payload), Health)
         except codec.DecodeError:
             return
-        with seen.lock:
+        with reported:
             seen.health[(health.service, health.pid)] = health
+            reports[health.service] = reports.get(health.service, 0) + 1
+            reported.notify_all()
 
     def capture(path: str) -> Callable[[Any], None]:
         def on_sample(sample: Any) -> None:
@@ -352,20 +364,33 @@ def _fuzz(args: argparse.Namespace, session: zenoh.Session, seen: Observed, up: 
                 seen.captured.setdefault(path, message.model_dump())
         return on_sample
 
-    subs = [session.declare_subscriber(TOPICS["infer/pose"].key(robot), on_pose),
+    alive: set[str] = set()
+    all_alive = threading.Event()
+
+    def on_token(sample: Any) -> None:
+        service = service_of_liveliness_key(str(sample.key_expr))
+        with seen.lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                alive.add(service)
+            else:
+                alive.discard(service)
+            if alive >= set(services):
+                all_alive.set()
+
+    subs = [session.liveliness().declare_subscriber(all_liveliness_key(robot), on_token, history=True)]
+    subs += [session.declare_subscriber(TOPICS["infer/pose"].key(robot), on_pose),
             session.declare_subscriber(TOPICS["shooter_bridge/solution"].key(robot), on_solution),
             session.declare_subscriber(all_health_key(robot), on_health)]
     subs += [session.declare_subscriber(TOPICS[p].key(robot), capture(p))
              for p in ("camera/frame", "preprocess/edges", "infer/pose")]
     warm_start = time.monotonic()
     chain_makes_poses = "infer" in services and "camera" in services
-    if chain_makes_poses:
-        deadline = warm_start + WARMUP_TIMEOUT_S
-        while not stop.is_set() and not seen.first_valid.wait(0.5) and time.monotonic() < deadline:
-            if up.poll() is not None:
-                break
-    else:
-        stop.wait(5.0)  # no pose to wait for: let the stages declare their subscribers
+    # With no pose to wait for, until every stage is alive: a stage declares its token after its subscribers.
+    ready = seen.first_valid if chain_makes_poses else all_alive
+    deadline = warm_start + WARMUP_TIMEOUT_S
+    while not stop.is_set() and not ready.wait(0.5) and time.monotonic() < deadline:
+        if up.poll() is not None:
+            break
     warmup_s = time.monotonic() - warm_start
 
     seq_counter = [HOSTILE_SEQ]
@@ -429,7 +454,9 @@ def _fuzz(args: argparse.Namespace, session: zenoh.Session, seen: Observed, up: 
         sent[kind] = sent.get(kind, 0) + 1
         stop.wait(period)
     fuzz_s = time.monotonic() - started
-    stop.wait(2.5)  # two more health periods, so the counts include the last payloads
+    with reported:  # two more health reports from every stage, so the counts include the last payloads
+        wanted = {service: reports.get(service, 0) + 2 for service in services}
+        reported.wait_for(lambda: all(reports.get(s, 0) >= n for s, n in wanted.items()), timeout=10.0)
     for sub in subs:
         sub.undeclare()
     for publisher in publishers.values():

@@ -146,18 +146,23 @@ def run() -> None:
     finalizes is ended inside Rust frames, and glibc aborts the whole process ("FATAL: exception not
     rethrown", exit -6 instead of 0): seen on `courtloc monitor` stopping under load. So the exit code,
     streams and log handlers are settled here and the process ends directly. In-process callers (tests)
-    use `main`, which raises SystemExit as usual.
+    use `main`, which raises SystemExit as usual, or `exit_status`, the path this takes up to the exit.
     """
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        if exc.code is None or isinstance(exc.code, int):
-            code = int(exc.code or 0)
-        else:  # what the interpreter does with SystemExit("message")
-            print(exc.code, file=sys.stderr)
-            code = 1
+    code = exit_status()
     logging.shutdown()
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(code)
+
+
+def exit_status(argv: Sequence[str] | None = None) -> int:
+    """`main`'s SystemExit as the process's exit code (what `run` ends the process with); a bug's exception
+    propagates, as it would out of `run`."""
+    try:
+        main(argv)
+    except SystemExit as exc:
+        if exc.code is None or isinstance(exc.code, int):
+            return int(exc.code or 0)
+        print(exc.code, file=sys.stderr)  # what the interpreter does with SystemExit("message")
+        return 1
+    return 0

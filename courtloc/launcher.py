@@ -22,8 +22,9 @@ from pathlib import Path
 from typing import BinaryIO, TextIO
 
 from courtloc.port_holder import endpoint_port, port_holder
+from courtloc.router_process import router_argv
 from courtloc.services.deployment import DeploymentConfig
-from courtloc.stage_cli import stage_argv
+from courtloc.stage_cli import router_settings, stage_argv
 from courtloc.watch import BusWatcher
 
 log = logging.getLogger("courtloc.launcher")
@@ -107,11 +108,9 @@ class Supervisor:
     children: list[Child] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        python = [sys.executable, "-m", "courtloc"]
         launcher = self.config.launcher
         if launcher.run_router:
-            listen = [a for ep in self.config.router.listen for a in ("--listen", ep)]
-            self.children.append(Child("router", [*python, "router", *listen, "--config", str(self.config_path)],
+            self.children.append(Child("router", router_argv(router_settings(self.config)),
                                        launcher.router_restart_backoff_s, launcher.restart_backoff_s,
                                        ready_line="router listening"))
         for name in launcher.services:

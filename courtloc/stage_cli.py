@@ -12,7 +12,7 @@ from courtloc.common.exposure import is_loopback
 from courtloc.common.services_table import SERVICES
 from courtloc.recording.busargs import add_timeout_argument
 from courtloc.router_process import RouterSettings, router_argv
-from courtloc.services.deployment import load_deployment
+from courtloc.services.deployment import DeploymentConfig, load_deployment
 
 log = logging.getLogger("courtloc.stage")
 
@@ -24,11 +24,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_timeout_argument(run)
     run.set_defaults(func=run_stage)
 
-    router = sub.add_parser("router", help="run a Zenoh router in this process")
+    router = sub.add_parser("router", help="run a Zenoh router (as its own lean process)")
     router.add_argument("--listen", action="append", default=None,
                         help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
     router.add_argument("--config", type=Path, default=None, help="deployment TOML: takes [router] listen")
     router.set_defaults(func=run_router)
+
+
+def router_settings(config: DeploymentConfig, listen: list[str] | None = None) -> RouterSettings:
+    """What the router process needs of a validated deployment (`listen` overrides its [router] listen)."""
+    return RouterSettings(robot_id=config.robot_id, listen=listen or config.router.listen,
+                          connect=config.router.connect, secure_dir=config.router.secure_dir,
+                          zenoh_config_file=config.zenoh.config_file, shared_memory=config.zenoh.shared_memory)
 
 
 def stage_argv(name: str, config: Path | None, verbose: int = 0, timeout_s: float | None = None) -> list[str]:
@@ -57,9 +64,7 @@ def run_router(args: argparse.Namespace) -> int:
         print(f"router: --listen {', '.join(exposed)} is reachable beyond this machine: set [router] secure_dir "
               "(courtloc secure init) or insecure = true in the deployment file", file=sys.stderr)
         return 2
-    settings = RouterSettings(robot_id=config.robot_id, listen=listen, connect=config.router.connect,
-                              secure_dir=config.router.secure_dir, zenoh_config_file=config.zenoh.config_file,
-                              shared_memory=config.zenoh.shared_memory)
+    settings = router_settings(config, listen)
     logging.shutdown()
     sys.stdout.flush()
     sys.stderr.flush()

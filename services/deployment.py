@@ -18,7 +18,7 @@ from courtloc.common.bus import RouterUnreachable, ZenohConfig, wait_for_router
 from courtloc.common.config_loader import ConfigError, load_model, resolve_relative_paths
 from courtloc.common.exposure import insecure_exposure, is_loopback, warn_while_insecure
 from courtloc.common.realtime import RealtimeConfig, RealtimeError, apply_realtime
-from courtloc.common.runtime import Service
+from courtloc.common.runtime import HEALTH_PERIOD_S, Service
 from courtloc.common.security import with_identity
 from courtloc.common.services_table import SERVICES, check_robot_id
 from courtloc.scan.config import PreprocessConfig
@@ -76,6 +76,8 @@ class DeploymentConfig(BaseModel):
     shooter_bridge: ShooterConfig = Field(default_factory=ShooterConfig)
     realtime: RealtimeConfig = Field(default_factory=RealtimeConfig,
                                      description="optional CPU affinity / SCHED_FIFO per stage, off by default")
+    health_period_s: float = Field(default=HEALTH_PERIOD_S, gt=0.0, le=60.0,
+                                   description="seconds between two health reports of each stage")
     insecure: bool = Field(default=False, description="allow listening beyond loopback without the security "
                            "bundle (a warning is logged every minute while it does)")
 
@@ -164,6 +166,7 @@ def stage_main(stage_class: type[Service], argv: Sequence[str] | None = None) ->
         # Each stage presents its own certificate and password (the ACL grants per identity).
         zenoh_config = config.zenoh.model_copy(update={"security": with_identity(config.zenoh.security, name)})
         stage = stage_class(config.robot_id, zenoh_config, getattr(config, name))  # a bad input file stops it here
+        stage.health_period_s = config.health_period_s
         applied = apply_realtime(name, config.realtime)
         if zenoh_config.mode == "client":  # a peer opens without a router; a client waits for one
             wait_for_router(zenoh_config, args.timeout)

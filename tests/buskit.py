@@ -21,6 +21,8 @@ import zenoh
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.services_table import TOPICS, all_liveliness_key, service_of_liveliness_key
+from courtloc.router_process import RouterSettings, router_argv
+from courtloc.stage_cli import stage_argv
 
 PYTHON = [sys.executable, "-m", "courtloc"]
 
@@ -106,14 +108,19 @@ class Proc:
 
 
 def start_router(port: int) -> Proc:
-    router = Proc([*PYTHON, "router", "--listen", endpoint(port)]).start()
+    """A router on loopback as the launcher starts it (the lean router process, without the CLI's imports);
+    the `courtloc router` command itself: test_placement_two_hosts, test_security_*, test_router_process."""
+    router = Proc(router_argv(RouterSettings(robot_id="robot1", listen=[endpoint(port)]))).start()
     router.wait_line("router listening")
     return router
 
 
 def start_stage(name: str, config_path: Path, verbose: bool = True) -> Proc:
-    argv = [*PYTHON, *(["-v"] if verbose else []), "run", name, "--config", str(config_path)]
-    return Proc(argv).start()
+    """The stage's own process, started as the launcher starts it: `courtloc run` checks the config and then
+    becomes this same command line (stage_argv), so going straight to it skips only the CLI's imports (~1.5 s
+    a stage). `courtloc run` itself is tested in test_config, test_realtime, test_security_own_credentials
+    and test_cli_mistakes."""
+    return Proc(stage_argv(name, config_path, verbose=1 if verbose else 0)).start()
 
 
 class BusClient:
@@ -209,9 +216,12 @@ class BusClient:
         self.session.close()
 
 
-def write_config(path: Path, port: int, body: str = "", robot_id: str = "robot1", zenoh_extra: str = "") -> Path:
-    """A deployment file whose stages connect to the test router on `port`; quick reconnects."""
-    path.write_text(f'robot_id = "{robot_id}"\n[zenoh]\nconnect = ["{endpoint(port)}"]\n'
+def write_config(path: Path, port: int, body: str = "", robot_id: str = "robot1", zenoh_extra: str = "",
+                 health_period_s: float | None = None) -> Path:
+    """A deployment file whose stages connect to the test router on `port`; quick reconnects. health_period_s:
+    for a test that waits on health reports, a short period makes each wait short (counts are what it checks)."""
+    health = "" if health_period_s is None else f"health_period_s = {health_period_s:g}\n"
+    path.write_text(f'robot_id = "{robot_id}"\n{health}[zenoh]\nconnect = ["{endpoint(port)}"]\n'
                     f'open_retry_s = 0.1\nopen_retry_max_s = 0.3\n{zenoh_extra}\n{body}\n')
     return path
 

@@ -6,6 +6,7 @@ import json
 import math
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -193,13 +194,14 @@ def test_valid_wrong_poses_are_grouped_into_runs():
 def test_a_stage_that_cannot_start_fails_the_bench_at_once_in_one_line(tmp_path: Path):
     not_a_dir = tmp_path / "file"
     not_a_dir.write_text("")
-    result = subprocess.run([sys.executable, "-m", "courtloc", "bench", "twin", "--scenario", "clean", "--seconds", "1",
-                             "--store", str(not_a_dir / "store")], capture_output=True, text=True, timeout=120)
+    bench = [sys.executable, "-m", "courtloc", "bench", "twin", "--scenario", "clean", "--seconds", "1"]
+    with ThreadPoolExecutor(max_workers=2) as pool:  # two independent benches: side by side, not one after the other
+        runs = [pool.submit(subprocess.run, [*bench, *extra], capture_output=True, text=True, timeout=120)
+                for extra in (["--store", str(not_a_dir / "store")], ["--infer", "threads=0"])]
+        result, bad = (run.result() for run in runs)
     assert result.returncode == 1
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "infer exited" in lines[0] and "Not a directory" in lines[0]
-    bad = subprocess.run([sys.executable, "-m", "courtloc", "bench", "twin", "--scenario", "clean", "--seconds", "1",
-                          "--infer", "threads=0"], capture_output=True, text=True, timeout=120)
     assert bad.returncode == 1 and bad.stderr.strip().count("\n") == 0 and "infer.threads" in bad.stderr
 
 

@@ -71,7 +71,8 @@ def test_missing_folder_is_retried_not_fatal(tmp_path: Path) -> None:
     port = free_port()
     folder = tmp_path / "later"
     config = write_config(tmp_path / "cam.toml", port,
-                          folder_camera_toml(folder, fps=30, extra="reopen_backoff_s = 0.1\nreopen_backoff_max_s = 0.2"))
+                          folder_camera_toml(folder, fps=30, extra="reopen_backoff_s = 0.1\nreopen_backoff_max_s = 0.2"),
+                          health_period_s=0.2)
     router = start_router(port)
     client = BusClient(port)
     client.subscribe("camera/frame")

@@ -38,6 +38,16 @@ def test_bad_robot_id_and_unknown_service(tmp_path: Path) -> None:
     assert "robot_id" in str(info.value) and "launcher.services" in str(info.value)
 
 
+def test_health_period_is_positive_and_named_when_not(tmp_path: Path) -> None:
+    path = tmp_path / "health.toml"
+    path.write_text("health_period_s = 0.25\n")
+    assert load_deployment(path).health_period_s == 0.25
+    assert load_deployment(None).health_period_s == 1.0
+    path.write_text("health_period_s = 0\n")
+    with pytest.raises(ConfigError, match="health_period_s"):
+        load_deployment(path)
+
+
 def test_folder_source_needs_its_section(tmp_path: Path) -> None:
     path = tmp_path / "folder.toml"
     path.write_text('[camera]\nsource = "folder"\n')

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_in_process import courtloc_in_process
 
 from courtloc.lab.datasets import Dataset, DatasetError, recording_of
 from courtloc.lab.eval import StartHint, evaluate, open_model
@@ -121,10 +122,11 @@ def test_eval_cli_on_synth_output_warns_of_the_court_and_writes_both_kinds_of_ke
     (["--data", "{r25}", "--model", "{missing}"], "no model at"),
     (["--data", "{r25}", "--recordings", "nope"], "unknown recording"),
 ])
-def test_eval_cli_errors_are_one_line(synth_sets: dict[str, Path], tmp_path: Path, args: list[str],
-                                      reason: str) -> None:
+def test_eval_cli_errors_are_one_line(synth_sets: dict[str, Path], tmp_path: Path, args: list[str], reason: str,
+                                      capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture) -> None:
     filled = [a.format(missing=tmp_path / "missing", r25=synth_sets["r25"]) for a in args]
-    result = courtloc("eval", *filled, "--no-progress")
+    # in this process: the exit code and the printed lines are the proof (the whole run above is a real one)
+    result = courtloc_in_process(["eval", *filled, "--no-progress"], capsys, caplog)
     assert result.returncode != 0 and result.stdout == ""
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and reason in lines[0] and lines[0].startswith("courtloc eval:")

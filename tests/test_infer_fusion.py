@@ -30,7 +30,7 @@ def _odometry(seq: int, x: float = 0.0) -> Odometry:
 
 def test_a_blind_frame_is_bridged_by_odometry_with_its_covariance(tmp_path: Path) -> None:
     port = free_port()
-    config = write_config(tmp_path / "robot.toml", port, f"""
+    config = write_config(tmp_path / "robot.toml", port, health_period_s=0.2, body=f"""
 [infer]
 store = "{tmp_path / 'store'}"
 [infer.start]

@@ -6,9 +6,8 @@ from pathlib import Path
 import pytest
 from buskit import BusClient, free_port, start_router, start_stage, write_config
 
-from courtloc.common import codec
-from courtloc.common.control import ModelReply, ModelRequest, Rollback
-from courtloc.common.services_table import CONTROLS
+from courtloc.common.control import Rollback
+from courtloc.model_client import ModelClient
 
 pytestmark = pytest.mark.integration
 
@@ -27,10 +26,9 @@ def test_a_store_error_reply_does_not_name_the_store_folder(tmp_path: Path) -> N
     try:
         stage.wait_line("infer running for robot", timeout=60)
         (store / "active.json").write_text("{ damaged")  # the store's own record, broken on disk
-        control = CONTROLS["infer/model"]
-        replies = client.session.get(control.key("robot1"), payload=codec.encode(ModelRequest(body=Rollback())),
-                                     timeout=30)
-        reply = next(codec.decode(bytes(r.ok.payload), ModelReply) for r in replies if r.ok is not None)
+        # The pit's client: it waits until the router knows the stage's queryable (which can come after the
+        # stage says it runs: a one-shot query then reaches nobody), then asks once.
+        reply = ModelClient(client.session, "robot1").request(Rollback(), timeout_s=30)
     finally:
         client.close()
         stage.stop()

@@ -92,13 +92,26 @@ def robot(tmp_path: Path) -> Iterator[Robot]:
         robot.close()
 
 
+@pytest.fixture(scope="module")
+def refusing_robot(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
+    """One robot for the refused push beginnings: a PushBegin can only leave an upload behind, move the record
+    or kill the stage, and each test asserts none of these happened, so the next one starts as from fresh."""
+    tmp = tmp_path_factory.mktemp("refusals")
+    robot = Robot(tmp, tmp / "store")
+    try:
+        yield robot
+    finally:
+        robot.close()
+
+
 def _spec(name: str, data: bytes) -> FileSpec:
     # model_construct: a hostile client sends what it likes, the contract's own checks included
     return FileSpec.model_construct(path=name, size=len(data), sha256=hashlib.sha256(data).hexdigest())
 
 
 @pytest.mark.parametrize("name", [".", "..", ".files.json", ".active.json", "x" * 300])
-def test_file_names_outside_the_rule_are_refused_with_the_rule(robot: Robot, name: str) -> None:
+def test_file_names_outside_the_rule_are_refused_with_the_rule(refusing_robot: Robot, name: str) -> None:
+    robot = refusing_robot
     reply = robot.models.request(PushBegin(files=[_spec("model.onnx", b"m"), _spec(name, b"z")]))
     # refused by the store's naming rule, or (longer than any name may be) by the contract's limit
     assert not reply.ok and ("is not a plain name" in reply.reason or "at most 128" in reply.reason), reply

@@ -127,7 +127,7 @@ def _frame_payload(**fields: object) -> bytes:
 def test_preprocess_process_counts_every_hostile_frame_by_reason_and_keeps_working(tmp_path: Path) -> None:
     port = free_port()
     router = start_router(port)
-    config = write_config(tmp_path / "deploy.toml", port)
+    config = write_config(tmp_path / "deploy.toml", port, health_period_s=0.2)  # each step waits for a report
     client = BusClient(port)
     client.subscribe("preprocess/health")
     client.subscribe("preprocess/edges")
@@ -148,12 +148,17 @@ def test_preprocess_process_counts_every_hostile_frame_by_reason_and_keeps_worki
     try:
         client.wait_alive("preprocess")
         client.wait_subscribed("camera/frame")
+        # Counts so far, from a health report sent after the stage started; then one payload at a time (the
+        # inbox keeps only the latest), each counted under its reason before the next is sent.
+        counted = client.wait_for("preprocess/health").detail
+        expected = {f"reject.{r}": counted.get(f"reject.{r}", 0) for r, _ in hostile}
         for reason, payload in hostile:
-            before = client.wait_for("preprocess/health").detail.get(f"reject.{reason}", 0)
+            expected[f"reject.{reason}"] += 1
             # BLOCK: a multi-megabyte payload must not be dropped in transit on a busy machine
             client.session.put(TOPICS["camera/frame"].key("robot1"), payload,
                                congestion_control=zenoh.CongestionControl.BLOCK)
-            client.wait_for("preprocess/health", lambda h, r=reason, b=before: h.detail.get(f"reject.{r}", 0) > b)
+            client.wait_for("preprocess/health", lambda h, want=dict(expected): all(
+                h.detail.get(key, 0) >= count for key, count in want.items()))
         client.put_raw("camera/frame", _frame_payload())
         edges = client.wait_for("preprocess/edges")
         assert edges.header.valid and edges.width == 640
@@ -178,7 +183,8 @@ def test_handler_exceptions_are_counted_and_logged_rate_limited(tmp_path: Path) 
     frames = TwinFrames([(2.0, -1.5, 0.4)])
     port = free_port()
     router = start_router(port)
-    config = write_config(tmp_path / "deploy.toml", port, f'[infer]\nstore = "{tmp_path / "store"}"\n')
+    config = write_config(tmp_path / "deploy.toml", port, f'[infer]\nstore = "{tmp_path / "store"}"\n',
+                          health_period_s=0.2)
     client = BusClient(port)
     client.subscribe("infer/health")
     stage = start_stage("infer", config)

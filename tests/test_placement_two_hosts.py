@@ -42,7 +42,7 @@ def test_chain_crosses_two_routers(tmp_path: Path) -> None:
     robot_router = start_router(port_robot)
     laptop_router = _start_router_joining(tmp_path, port_laptop, port_robot)
     folder = _court_images(tmp_path / "frames")
-    camera_cfg = write_config(tmp_path / "robot.toml", port_robot, f"""
+    camera_cfg = write_config(tmp_path / "robot.toml", port_robot, health_period_s=0.2, body=f"""
 [camera]
 source = "folder"
 fps = 15
@@ -51,7 +51,8 @@ encoding = "jpeg"
 path = "{folder}"
 pattern = "*.png"
 """)
-    laptop_cfg = write_config(tmp_path / "laptop.toml", port_laptop, zenoh_extra="shared_memory = false")
+    laptop_cfg = write_config(tmp_path / "laptop.toml", port_laptop, zenoh_extra="shared_memory = false",
+                              health_period_s=0.2)
     on_laptop, on_robot = BusClient(port_laptop), BusClient(port_robot)
     on_laptop.subscribe("camera/frame")
     on_robot.subscribe("preprocess/edges")

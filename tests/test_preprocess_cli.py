@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from cli_in_process import courtloc_in_process
 
 from courtloc.scan.config import PreprocessConfig
 from courtloc.scan.reference_scan import reference_preprocess
@@ -49,21 +50,25 @@ def test_preprocess_text_output_lists_the_hits(odd_image: tuple[Path, np.ndarray
     assert all(len(line.split()) == 4 for line in lines[2:])
 
 
-def test_preprocess_refuses_bad_files_with_the_reason(tmp_path: Path) -> None:
+def test_preprocess_refuses_bad_files_with_the_reason(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                      caplog: pytest.LogCaptureFixture) -> None:
     garbage = tmp_path / "garbage.jpg"
     garbage.write_bytes(b"not an image at all")
     empty = tmp_path / "empty.jpg"
     empty.write_bytes(b"")
     for path, words in ((garbage, "not a decodable image"), (empty, "is empty"), (tmp_path / "missing.jpg", "No such")):
-        result = courtloc("preprocess", str(path), "--json", "-")
+        # in this process: the exit code and the printed lines are the proof (the other tests run the command)
+        result = courtloc_in_process(["preprocess", str(path), "--json", "-"], capsys, caplog)
         assert result.returncode == 1
         assert words in result.stderr and result.stdout == ""
 
 
-def test_preprocess_refuses_a_bad_config_naming_the_field(odd_image: tuple[Path, np.ndarray], tmp_path: Path) -> None:
+def test_preprocess_refuses_a_bad_config_naming_the_field(odd_image: tuple[Path, np.ndarray], tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str],
+                                                          caplog: pytest.LogCaptureFixture) -> None:
     config = tmp_path / "pre.toml"
     config.write_text("[scan]\nangle_step_deg = -2\n")
-    result = courtloc("preprocess", str(odd_image[0]), "--config", str(config))
+    result = courtloc_in_process(["preprocess", str(odd_image[0]), "--config", str(config)], capsys, caplog)
     assert result.returncode == 2 and "angle_step_deg" in result.stderr
 
 

@@ -130,6 +130,9 @@ def test_record_command_keeps_bad_payloads_and_skips_frames_by_default(tmp_path:
     client = BusClient(port)
     try:
         recorder.wait_line("recording")
+        # The recorder's subscriptions reach the router after it says it records: a put before reaches nobody.
+        client.wait_subscribed("infer/pose")
+        client.wait_subscribed("infer/health")
         client.put_raw("camera/frame", codec.encode(_frame(0, 300)))  # not selected by default
         for seq in range(10):
             client.put_raw("infer/pose", codec.encode(_pose(seq, x=0.5 * seq)))

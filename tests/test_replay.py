@@ -35,6 +35,8 @@ def _record_live_run(port: int, config: Path, out: Path, n_poses: int) -> None:
     try:
         # The recorder listens before any stage starts: it sees every input the (stateful) infer stage saw.
         recorder.wait_line("recording")
+        for path in ("camera/frame", "preprocess/edges"):  # its subscriptions reach the router after that line
+            client.wait_subscribed(path)
         stages = [start_stage(name, config, verbose=False) for name in ("camera", "preprocess", "infer")]
         first = client.wait_for("infer/pose", timeout=60)
         client.wait_for("infer/pose", lambda m: m.header.seq >= first.header.seq + n_poses, timeout=60)

@@ -24,7 +24,8 @@ def test_camera_unplugged_and_back(tmp_path: Path) -> None:
     folder = tmp_path / "camera"
     _fill(folder, 10)
     config = write_config(tmp_path / "cam.toml", port,
-                          folder_camera_toml(folder, extra="reopen_backoff_s = 0.1\nreopen_backoff_max_s = 0.2"))
+                          folder_camera_toml(folder, extra="reopen_backoff_s = 0.1\nreopen_backoff_max_s = 0.2"),
+                          health_period_s=0.2)
     router = start_router(port)
     client = BusClient(port)
     client.subscribe("camera/frame")

@@ -58,7 +58,7 @@ def stages(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[int, dict
     port = free_port()
     router = start_router(port)
     config = write_config(tmp / "stages.toml", port, f'[shooter_bridge.link]\nport = "{tmp / "no-mcu"}"\n'
-                          if "shooter_bridge" in names else "")
+                          if "shooter_bridge" in names else "", health_period_s=0.2)  # the tests wait on reports
     procs = {name: start_stage(name, config, verbose=False) for name in names}
     try:
         yield port, procs

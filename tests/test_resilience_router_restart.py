@@ -21,7 +21,7 @@ RESUME_DEADLINE_S = 2.0
 
 def _chain_config(tmp_path: Path, port: int) -> Path:
     folder = write_line_frames(tmp_path / "frames")
-    return write_config(tmp_path / "chain.toml", port, folder_camera_toml(folder))
+    return write_config(tmp_path / "chain.toml", port, folder_camera_toml(folder), health_period_s=0.2)
 
 
 def _sent_after(message: object, ready_ns: int) -> bool:

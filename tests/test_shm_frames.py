@@ -71,7 +71,8 @@ def test_malformed_frames_raise_the_codecs_reasons(payload: bytes, reason: str) 
 
 def _camera(tmp_path: Path, port: int, extra: str = "") -> Path:
     folder = write_line_frames(tmp_path / "frames", n=3)  # 640x480: a real frame's size
-    return write_config(tmp_path / "cam.toml", port, folder_camera_toml(folder, fps=30, extra=extra))
+    return write_config(tmp_path / "cam.toml", port, folder_camera_toml(folder, fps=30, extra=extra),
+                        health_period_s=0.2)  # the tests wait for counts in health
 
 
 @pytest.mark.integration

@@ -38,7 +38,7 @@ def test_bridge_process_sends_table_rpm_then_hold(tmp_path: Path, mcu: FakeMcu) 
     table = tmp_path / "table.csv"
     table.write_text("distance_m,rpm\n2.0,2000\n6.0,3000\n")
     port = free_port()
-    config = write_config(tmp_path / "deploy.toml", port, f"""
+    config = write_config(tmp_path / "deploy.toml", port, health_period_s=0.2, body=f"""
 [shooter_bridge]
 decide_period_s = 0.05
 [shooter_bridge.target]
@@ -124,7 +124,7 @@ def test_bridge_process_publishes_mcu_odometry_on_the_bus(tmp_path: Path, mcu: F
     from courtloc.services.shooter_bridge.protocol import McuFrame, OdometrySample, OdomFlag, encode, encode_odometry
 
     port = free_port()
-    config = write_config(tmp_path / "deploy.toml", port, f"""
+    config = write_config(tmp_path / "deploy.toml", port, health_period_s=0.2, body=f"""
 [shooter_bridge.target]
 ring = [{RING[0]}, {RING[1]}, {RING[2]}]
 [shooter_bridge.link]

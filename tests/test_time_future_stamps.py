@@ -64,7 +64,7 @@ def mcu() -> Iterator[FakeMcu]:
 @pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs ptys")
 def test_bridge_process_holds_and_counts_a_pose_stamped_in_the_future(tmp_path: Path, mcu: FakeMcu) -> None:
     port = free_port()
-    config = write_config(tmp_path / "deploy.toml", port, f"""
+    config = write_config(tmp_path / "deploy.toml", port, health_period_s=0.2, body=f"""
 [shooter_bridge]
 decide_period_s = 0.05
 [shooter_bridge.target]
@@ -123,7 +123,8 @@ def test_infer_process_never_makes_a_valid_pose_from_future_edges(tmp_path: Path
     router = start_router(port)
     # The robot starts where the frames show it (a configured start: the evidence acquisition needs).
     config = write_config(tmp_path / "deploy.toml", port, f'[infer]\nstore = "{tmp_path / "store"}"\n'
-                          f'[infer.start]\nx = {truth[0]}\ny = {truth[1]}\nyaw_deg = {math.degrees(truth[2])}\n')
+                          f'[infer.start]\nx = {truth[0]}\ny = {truth[1]}\nyaw_deg = {math.degrees(truth[2])}\n',
+                          health_period_s=0.2)
     client = BusClient(port)
     client.subscribe("infer/pose")
     client.subscribe("infer/health")
