@@ -37,7 +37,7 @@ class LaunchError(RuntimeError):
 @dataclass
 class Child:
     name: str
-    argv: list[str]
+    argv: list[str]  # a restart's command line
     backoff_s: float
     backoff_max_s: float = 5.0
     process: subprocess.Popen | None = None
@@ -50,6 +50,7 @@ class Child:
     ready: threading.Event = field(default_factory=threading.Event)
     settled: threading.Event = field(default_factory=threading.Event)  # ready, or the output ended
     last_line: str = ""
+    first_argv: list[str] | None = None  # the first start's, when it differs (a fresh run)
 
     def __post_init__(self) -> None:
         self.initial_backoff_s = self.backoff_s
@@ -60,14 +61,15 @@ class Child:
         self.ready.clear()
         self.settled.clear()
         handle = self.log_path.open("ab")
+        argv = self.first_argv if self.restarts == 0 and self.first_argv is not None else self.argv
         if self.ready_line is None:
-            self.process = subprocess.Popen(self.argv, stdout=handle, stderr=subprocess.STDOUT,
+            self.process = subprocess.Popen(argv, stdout=handle, stderr=subprocess.STDOUT,
                                             stdin=subprocess.DEVNULL)
             handle.close()
             self.ready.set()
             self.settled.set()
             return
-        self.process = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        self.process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                         stdin=subprocess.DEVNULL)
         threading.Thread(target=self._pump, args=(handle,), daemon=True).start()
 
@@ -114,8 +116,11 @@ class Supervisor:
                                        launcher.router_restart_backoff_s, launcher.restart_backoff_s,
                                        ready_line="router listening"))
         for name in launcher.services:
+            # The first start is a new run (a pose saved by an earlier run is not its evidence); a restart
+            # resumes mid-run from the pose its predecessor saved.
             self.children.append(Child(name, stage_argv(name, self.config_path),
-                                       launcher.restart_backoff_s, launcher.restart_backoff_max_s))
+                                       launcher.restart_backoff_s, launcher.restart_backoff_max_s,
+                                       first_argv=stage_argv(name, self.config_path, fresh_run=True)))
 
     def start_all(self, ready_timeout_s: float = 15.0) -> None:
         """The router first: stages started after it is listening connect at once. A router that does

@@ -38,11 +38,14 @@ def router_settings(config: DeploymentConfig, listen: list[str] | None = None) -
                           zenoh_config_file=config.zenoh.config_file, shared_memory=config.zenoh.shared_memory)
 
 
-def stage_argv(name: str, config: Path | None, verbose: int = 0, timeout_s: float | None = None) -> list[str]:
-    """The command line of a stage process: its own entry point, which loads only that stage."""
+def stage_argv(name: str, config: Path | None, verbose: int = 0, timeout_s: float | None = None,
+               fresh_run: bool = False) -> list[str]:
+    """The command line of a stage process: its own entry point, which loads only that stage. `fresh_run`:
+    the launcher's first start of a run (a pose saved by an earlier run is not resumed)."""
     return [sys.executable, "-m", f"courtloc.services.{name}", *(["-v"] * verbose),
             *(["--config", str(config)] if config is not None else []),
-            *(["--timeout", f"{timeout_s:g}"] if timeout_s is not None else [])]
+            *(["--timeout", f"{timeout_s:g}"] if timeout_s is not None else []),
+            *(["--fresh-run"] if fresh_run else [])]
 
 
 def run_stage(args: argparse.Namespace) -> int:

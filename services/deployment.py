@@ -119,6 +119,12 @@ class DeploymentConfig(BaseModel):
                              "[zenoh.security], or set insecure = true")
         return self
 
+    def as_fresh_run(self) -> "DeploymentConfig":
+        """The deployment for the first start of a run: the infer stage does not resume a pose an earlier run
+        saved (its configured start is this run's evidence; a saved pose seconds old from the previous run,
+        grown by its age, explained both mirror twins and left the localizer ambiguous for good)."""
+        return self.model_copy(update={"infer": self.infer.model_copy(update={"resume_max_age_s": 0.0})})
+
 
 def _court_and_camera(court: str, camera: str | None) -> tuple[str, str]:
     """Names of the deployment's court and camera, as packages' manifests carry them (files are read once)."""
@@ -153,6 +159,8 @@ def stage_main(stage_class: type[Service], argv: Sequence[str] | None = None) ->
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     parser.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in)")
     parser.add_argument("--timeout", type=float, default=None, help="give up when no router answers within S s")
+    parser.add_argument("--fresh-run", action="store_true",
+                        help="a new run (the launcher's first start): a pose saved by an earlier run is not resumed")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -161,6 +169,8 @@ def stage_main(stage_class: type[Service], argv: Sequence[str] | None = None) ->
     except ConfigError as exc:
         print(exc, file=sys.stderr)
         return 2
+    if args.fresh_run:
+        config = config.as_fresh_run()
     name = stage_class.name
     try:
         # Each stage presents its own certificate and password (the ACL grants per identity).

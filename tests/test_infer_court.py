@@ -10,10 +10,11 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from buskit import PYTHON, BusClient, free_port, start_router, start_stage, write_config
+from buskit import PYTHON, BusClient, Proc, free_port, start_router, start_stage, write_config
 from infer_models import TwinFrames, first_valid_pose, request_pose, run_model_cli
 
 from courtloc.services.infer.service import bundled_default
+from courtloc.stage_cli import stage_argv
 
 pytestmark = pytest.mark.integration
 
@@ -129,5 +130,14 @@ drift_mps = 0.2
         poses = [request_pose(client, frames, s) for s in range(seq + 1, seq + 6)]
         assert all(_near(p, MINUS_X) for p in poses if p.header.valid), [(p.x, p.y, p.reason) for p in poses]
         assert poses[-1].header.valid, [(p.x, p.y, p.reason) for p in poses]
+    finally:
+        infer.stop()
+    # A new run (`courtloc up` starts each stage with --fresh-run, restarts without): the pose the last run
+    # saved seconds ago is not its evidence; the configured start is.
+    assert (store.parent / "store.last-pose.json").is_file()
+    infer = Proc(stage_argv("infer", restarted, verbose=1, fresh_run=True)).start()
+    try:
+        infer.wait_line("infer running for robot", timeout=60)
+        assert not [line for line in infer.lines if "resuming from the pose saved" in line]
     finally:
         infer.stop()

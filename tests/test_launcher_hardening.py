@@ -15,7 +15,7 @@ from buskit import PYTHON, BusClient, Proc, endpoint, free_port, start_router
 from courtloc.common.services_table import all_liveliness_key
 from courtloc.launcher import Child, Supervisor
 from courtloc.port_holder import endpoint_port, port_holder
-from courtloc.services.deployment import DeploymentConfig, LauncherConfig
+from courtloc.services.deployment import DeploymentConfig, LauncherConfig, load_deployment
 
 SLEEPER = [sys.executable, "-c", "import time; time.sleep(120)"]
 
@@ -166,3 +166,15 @@ def test_router_killed_under_up_comes_back_each_time_with_the_short_delay(tmp_pa
         if client is not None:
             client.close()
         up.stop()
+
+
+def test_the_first_start_is_a_fresh_run_and_a_restart_resumes(tmp_path: Path) -> None:
+    """`courtloc up` starts each stage with --fresh-run (a pose saved by an earlier run is not resumed) and
+    restarts it without (mid-run, the pose its predecessor saved is the evidence)."""
+    config_path = tmp_path / "up.toml"
+    config_path.write_text('robot_id = "robot1"\n')
+    supervisor = Supervisor(load_deployment(config_path), config_path, tmp_path)
+    infer = next(child for child in supervisor.children if child.name == "infer")
+    assert infer.first_argv is not None and "--fresh-run" in infer.first_argv
+    assert "--fresh-run" not in infer.argv
+    assert [a for a in infer.first_argv if a != "--fresh-run"] == infer.argv
