@@ -16,8 +16,9 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    A pose prior scores each hypothesis by its Mahalanobis distance d^2 (position std grown by
    `motion_sigma_mps` per second since the prior held, heading likewise); hypotheses with d^2 >
    `prior_gate_chi2` are not explained by the prior. The prior decides for the best-scoring
-   hypothesis when it lies within `decide_chi2` (3 sigma) and every other one scores worse by at least
-   `decide_log_ratio` in log-likelihood (d^2 / 2). A half prior keeps the hypotheses in that half (|x| >= the centre margin). A lost
+   hypothesis when it lies within `decide_chi2` (3 sigma), the prior's grown spread is at most
+   `max_decide_std_m`, and every other one scores worse by at least `decide_log_ratio` in
+   log-likelihood (d^2 / 2). A half prior keeps the hypotheses in that half (|x| >= the centre margin). A lost
    track's prior that explains none of the hypotheses for `kidnap_frames` frames means the robot was moved (a kidnap, or a track
    that had snapped to a wrong parallel line): it is dropped, or with `kidnap_sigma_m` > 0 (default 0)
    it becomes a kidnap prior, the same place that wide with the heading unknown (an assumption: a robot
@@ -162,11 +163,11 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
         if not inside:
             return Decision(None, explained=False)
         best = min(inside, key=d2.__getitem__)
-        if hypotheses[best].pinned and d2[best] <= cfg.decide_chi2 and all(0.5 * (d2[i] - d2[best]) >= cfg.decide_log_ratio
-                                               for i in keep if i != best):
-            origin_t = hypotheses[best].origin_t
-            age = 0.0 if origin_t is None or prior.t is None else abs(origin_t - prior.t)
-            return Decision(best, explained, tight=prior.std_m + cfg.motion_sigma_mps * age <= cfg.tight_prior_m,
-                            kidnap=prior.source == "kidnap")
+        origin_t = hypotheses[best].origin_t
+        age = 0.0 if origin_t is None or prior.t is None else abs(origin_t - prior.t)
+        spread = prior.std_m + cfg.motion_sigma_mps * age
+        if hypotheses[best].pinned and d2[best] <= cfg.decide_chi2 and spread <= cfg.max_decide_std_m and all(
+                0.5 * (d2[i] - d2[best]) >= cfg.decide_log_ratio for i in keep if i != best):
+            return Decision(best, explained, tight=spread <= cfg.tight_prior_m, kidnap=prior.source == "kidnap")
         return Decision(None, explained)
     return Decision(keep[0] if len(keep) == 1 and hypotheses[keep[0]].pinned else None, explained)

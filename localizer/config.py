@@ -131,6 +131,9 @@ class AcquireConfig(BaseModel):
                                "it is taken for a kidnap (the truth may just not be found yet in a degenerate view)")
     kidnap_sigma_m: float = Field(0.0, ge=0, description="a lost track's pose that explains no hypothesis (the robot "
                                   "was moved) is kept as a prior this wide, heading unknown (0: dropped)")
+    max_decide_std_m: float = Field(1.5, gt=0, description="a pose prior grown wider than this (its std plus "
+                                    "motion_sigma_mps per second of age) decides nothing: within its 3 sigma lie wrong "
+                                    "basins metres away, and the true pose may be one the search has not found yet")
     decide_log_ratio: float = Field(4.6, gt=0, description="the prior decides when the best hypothesis is this much "
                                     "more likely (log) than every other (4.6: 100 to 1)")
 

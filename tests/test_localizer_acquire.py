@@ -48,6 +48,20 @@ def test_a_pose_prior_decides_by_likelihood_and_its_spread_grows_with_age() -> N
     assert _decide([mirror(POSE), POSE], prior, t=10.0).index is None
 
 
+def test_a_prior_grown_wider_than_max_decide_std_decides_nothing() -> None:
+    """After an outage while driving, the lost track's pose is known to metres: a wrong basin 2.8 m and 90
+    degrees off once sat within its 3 sigma while the true pose had not been found yet (the twin bench's
+    outage, 284 valid poses metres off). Such a prior still explains, but no longer decides."""
+    where = np.array([-4.0, -2.5, 0.5])  # near a corner: the mirror twins lie ~11 m away
+    wrong = where + [-1.0, -2.0, math.pi / 2]
+    prior = acquire.Prior("track", pose=where, std_m=0.5, yaw_std_rad=0.2, t=0.0)
+    assert CFG.max_decide_std_m < 0.5 + CFG.motion_sigma_mps * 4.5
+    late = _decide([wrong, mirror(wrong)], prior, t=4.5)
+    assert late.index is None and late.explained
+    early = _decide([where, mirror(where)], prior, t=0.5)  # the same prior while still tight enough
+    assert early.index == 0
+
+
 def test_a_track_prior_that_explains_no_hypothesis_is_not_evidence() -> None:
     far = acquire.Prior("track", pose=np.array([6.0, 3.0, 2.0]), std_m=0.05, yaw_std_rad=0.02, t=0.0)
     decision = _decide([POSE, mirror(POSE)], far, t=0.2)
