@@ -8,17 +8,19 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
+import secrets
 import sys
 import threading
 import time
 from pathlib import Path
-from typing import Literal
+from typing import Callable, Literal
 
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
 from courtloc.common.security import SecurityConfig, client_settings
-from courtloc.common.services_table import Topic
+from courtloc.common.services_table import MAX_BUS_MESSAGE_BYTES, Topic
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +70,11 @@ def build_zenoh_config(cfg: ZenohConfig) -> zenoh.Config:
         "period_increase_factor": 2.0}))
     # Every session on the path must agree, the router included, or the link falls back to bytes.
     zcfg.insert_json5("transport/shared_memory/enabled", json.dumps(cfg.shared_memory))
+    # zenoh reassembles a fragmented message whole (1 GiB allowed by default) before a subscriber sees it:
+    # bounded by the services table, a bigger one is dropped on receipt (the link stays up) instead of being
+    # held in memory until our own size check refuses it. Payloads in shared memory are not reassembled
+    # (a descriptor travels); the runtime's size check refuses those before copying them.
+    zcfg.insert_json5("transport/link/rx/max_message_size", json.dumps(MAX_BUS_MESSAGE_BYTES))
     if cfg.security is not None and cfg.mode != "router":
         for path, value in client_settings(cfg.security).items():
             zcfg.insert_json5(path, json.dumps(value))
@@ -132,3 +139,44 @@ def wait_for_router(zenoh_config: ZenohConfig, timeout_s: float | None) -> None:
             said = True
         time.sleep(delay if left is None else min(delay, left))
         delay = min(delay * 2, zenoh_config.open_retry_max_s)
+
+
+# zenoh ids: up to 16 bytes in lower-case hex, without leading zeros (zenoh refuses "0a...").
+ZENOH_ID_PATTERN = re.compile(r"^[1-9a-f][0-9a-f]{0,31}$")
+
+
+def check_zenoh_id(value: str) -> str:
+    if not ZENOH_ID_PATTERN.match(value):
+        raise ValueError(f"zenoh id {value!r} must match {ZENOH_ID_PATTERN.pattern} (hex, no leading zero)")
+    return value
+
+
+def new_router_id() -> str:
+    """A fresh zenoh id for a router one run starts: 128 random bits with the top one set (no leading zero),
+    so no other pipeline's router has it by chance."""
+    return f"{secrets.randbits(127) | 1 << 127:032x}"
+
+
+def watch_router_identity(zsession: zenoh.Session, expected_id: str,
+                          on_foreign: Callable[[str], None]) -> zenoh.TransportEventsListener:
+    """Call `on_foreign(router_id)` whenever `zsession` is connected to a router whose id is not
+    `expected_id`: the routers connected now (checked before this returns) and any it connects to later.
+    A client reconnects to whatever listens at its endpoint: after its router died, another pipeline's router
+    that took the port would be joined silently. A transport event, not a poll: it fires as the link opens,
+    before much data can cross it. Peers (another stage in peer mode) are not routers and are not checked.
+    `on_foreign` may be called more than once for one router. Undeclare the listener when done."""
+    check_zenoh_id(expected_id)
+
+    def on_event(event: zenoh.TransportEvent) -> None:
+        transport = event.transport
+        if (event.kind == zenoh.SampleKind.PUT and transport.whatami == zenoh.WhatAmI.ROUTER
+                and str(transport.zid) != expected_id):
+            on_foreign(str(transport.zid))
+
+    # Declared first, then the current routers read: a transport opening in between is seen by one of the
+    # two (the listener's own history arrives later, on zenoh's thread, after the caller has gone on).
+    listener = zsession.info.declare_transport_events_listener(on_event, history=False)
+    for router_id in (str(zid) for zid in zsession.info.routers_zid()):
+        if router_id != expected_id:
+            on_foreign(router_id)
+    return listener

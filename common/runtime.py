@@ -18,7 +18,7 @@ import zenoh
 from pydantic import BaseModel
 
 from courtloc.common import codec
-from courtloc.common.bus import ZenohConfig, declare_publisher, open_session
+from courtloc.common.bus import ZenohConfig, declare_publisher, open_session, watch_router_identity
 from courtloc.common.control_server import ControlServer
 from courtloc.common.inbox import Delivery, LatestInbox
 from courtloc.common.limits import clip_text
@@ -28,6 +28,9 @@ from courtloc.common.signals import stop_on_signals
 from courtloc.common.stats import LatencyWindow, RateLimitedLog, RateMeter
 
 HEALTH_PERIOD_S = 1.0
+# A stage that found itself connected to another pipeline's router exits with this code (not 1: no router;
+# not 2: a bad deployment) so the launcher restarts it and its log says why.
+FOREIGN_ROUTER_EXIT = 3
 
 
 class Service:
@@ -49,6 +52,10 @@ class Service:
         self._started = time.monotonic()
         self._rate_log = RateLimitedLog(self.log)
         self.health_period_s = HEALTH_PERIOD_S  # the deployment's health_period_s (stage_main sets it)
+        # The id of the router `courtloc up` started for this run (stage_main sets it from --expect-router);
+        # None: any router at the endpoint will do (`courtloc run` joining a robot from the pit).
+        self.expected_router_id: str | None = None
+        self.foreign_router_id: str | None = None
         self.frames_in = 0
         self.frames_out = 0
         self.stale = 0
@@ -132,11 +139,27 @@ class Service:
         self.session = open_session(self.zenoh_config, self.stop_event)
         if self.session is None:
             return 0
+        guard = None
         try:
-            return self._run_in_session(self.session)
+            if self.expected_router_id is not None:
+                guard = watch_router_identity(self.session, self.expected_router_id, self._on_foreign_router)
+            code = self._run_in_session(self.session) if not self.stop_event.is_set() else 0
+            return FOREIGN_ROUTER_EXIT if self.foreign_router_id is not None else code
         finally:
+            if guard is not None:
+                guard.undeclare()
             self.session.close()
             self.log.info("%s stopped", self.name)
+
+    def _on_foreign_router(self, router_id: str) -> None:
+        """Connected to a router that is not the one `courtloc up` started (zenoh thread): leave at once, so
+        this stage's data never mixes with another pipeline's; the launcher restarts it until its own router
+        is back. Said once: zenoh may report the same router again while the stage stops."""
+        if self.foreign_router_id is None:
+            self.foreign_router_id = router_id
+            self.log.error("connected to router %s, not %s (the router courtloc up started for this run): another "
+                           "pipeline's router holds the endpoint; stopping", router_id, self.expected_router_id)
+        self.stop_event.set()
 
     def _run_in_session(self, zsession: zenoh.Session) -> int:
         for path in self.spec.outputs:
@@ -190,7 +213,7 @@ class Service:
             self.produce()
         except Exception as exc:  # a bug must not leave a zombie process: log, and let run() stop
             self.log.exception("worker failed")
-            self.last_error = repr(exc)
+            self.last_error = clip_text(repr(exc))  # like every string of a health message: bounded
             self.stop_event.set()
 
     def _consume(self) -> None:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from courtloc.bench_procstats import ProcessSampler
-from courtloc.cliargs import add_json_argument, positive_float
+from courtloc.cliargs import add_json_argument, json_to_stdout, positive_float
 from courtloc.common.services_table import RELAY_HOPS
 from courtloc.launcher import run_up
 from courtloc.services.deployment import load_deployment
@@ -82,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
         if relay["e2e_latency_ms_p50"] and report["e2e_latency_ms_p50"]:
             report["chain_over_relay_p50"] = report["e2e_latency_ms_p50"] / relay["e2e_latency_ms_p50"]
     text = json.dumps(report, indent=2)
-    print(text)
+    if not json_to_stdout(args.json):  # `--json -`: printed once, by the write below
+        print(text)
     if args.json is not None:
         args.json.write_text(text)
     return 0

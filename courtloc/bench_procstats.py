@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from courtloc.router_process import ROUTER_MODULE
+from courtloc.stage_cli import SIM_CAMERA_MODULE
 
 _PROC = Path("/proc")
 _TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
@@ -84,6 +85,17 @@ class ProcessSampler:
 STAGE_MODULE_PREFIX = "courtloc.services."
 
 
+def stage_of_argv(argv: list[str]) -> str | None:
+    """A stage runs as its own entry point, `python -m courtloc.services.<stage>`; a simulated camera as the
+    twin's camera stage (SIM_CAMERA_MODULE)."""
+    for arg in argv:
+        if arg == SIM_CAMERA_MODULE:
+            return "camera"
+        if arg.startswith(STAGE_MODULE_PREFIX):
+            return arg.rsplit(".", 1)[1]
+    return None
+
+
 def child_processes(parent: int) -> dict[str, int]:
     """The launcher's children by role: 'router' or the stage name (from their command lines)."""
     found: dict[str, int] = {}
@@ -97,8 +109,8 @@ def child_processes(parent: int) -> dict[str, int]:
             continue  # exited meanwhile
         if int(stat.rsplit(")", 1)[1].split()[1]) != parent:
             continue
-        stage = next((a.rsplit(".", 1)[1] for a in argv if a.startswith(STAGE_MODULE_PREFIX)), None)
-        if stage is not None:  # a stage runs as its own entry point, `python -m courtloc.services.<stage>`
+        stage = stage_of_argv(argv)
+        if stage is not None:
             found[stage] = int(entry.name)
         elif ROUTER_MODULE in argv or "router" in argv:  # `courtloc router` becomes ROUTER_MODULE at once
             found["router"] = int(entry.name)

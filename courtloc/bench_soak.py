@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from courtloc.bench_procstats import child_processes, pss_kb
-from courtloc.cliargs import add_json_argument, positive_float
+from courtloc.cliargs import add_json_argument, json_to_stdout, positive_float
 from courtloc.common.signals import stop_on_signals
 from courtloc.services.deployment import load_deployment
 from courtloc.watch import BusWatcher
@@ -92,7 +92,8 @@ def run(args: argparse.Namespace) -> int:
             up.kill()
     report = summarise(windows, seen_pids, e2e_topic=watcher.e2e_topic)
     text = json.dumps(report, indent=2)
-    print(text)
+    if not json_to_stdout(args.json):  # `--json -`: printed once, by the write below
+        print(text)
     if args.json is not None:
         args.json.write_text(text)
     return 0 if windows else 1

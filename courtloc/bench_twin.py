@@ -1,6 +1,6 @@
 """twin: pose error, validity and recovery of the real chain on the digital twin, per scenario
 
-For each scenario (courtloc/sim/scenarios.py) a router and the four stages run as separate OS
+For each scenario (sim/scenarios.py) a router and the four stages run as separate OS
 processes on loopback, supervised exactly as `courtloc up` runs them (courtloc/launcher.py), with the
 camera's sim source playing the scenario. A bus client records every `infer/pose` and every
 `camera/ground_truth`; the numbers (courtloc/bench_twin_metrics.py) compare each pose with the truth of
@@ -8,7 +8,7 @@ the same frame. The camera starts once the other stages are alive, so sim time 0
 take frames; a run lasts `--seconds` of sim time (frames), however slowly the machine renders them.
 
 With fusion (`--fusion`, by default both ways for the fusion scenarios) the camera's sim source also runs
-the twin's MCU (courtloc/sim/twin_mcu.py) on a pty, the shooter bridge opens it as its serial port and
+the twin's MCU (sim/twin_mcu.py) on a pty, the shooter bridge opens it as its serial port and
 the infer stage fuses the odometry the bridge publishes; the vision-only run configures none of it.
 """
 from __future__ import annotations
@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
+
 from courtloc.bench_twin_metrics import (
     Event,
     PoseSample,
@@ -36,6 +38,8 @@ from courtloc.bench_twin_metrics import (
     kidnap_metrics,
     twin_metrics,
 )
+from courtloc.cli_errors import RUN_EXIT, UsageError
+from courtloc.cliargs import JSON_STDOUT, add_json_argument, json_output, json_to_stdout, positive_float
 from courtloc.common import codec
 from courtloc.common.messages import GroundTruth, Pose
 from courtloc.common.services_table import SERVICES, TOPICS
@@ -44,14 +48,20 @@ from courtloc.services.deployment import DeploymentConfig, load_deployment
 from courtloc.sim.scenarios import SCENARIOS, scenario
 from courtloc.sim.twin_mcu import TwinMcuConfig
 from courtloc.watch import BusWatcher
+from courtloc.world.camera import load_camera
+from courtloc.world.court import load_court
 
 log = logging.getLogger("courtloc.bench_twin")
 STAGES_BEFORE_CAMERA = ("preprocess", "infer", "shooter_bridge")
 VARIANTS = {"vision_only": "vision only", "fused": "fused"}
 
 
-class BenchError(RuntimeError):
-    """A run that cannot be measured (a stage that never came up); the message says why."""
+class BenchError(UsageError):
+    """A run that cannot be measured (a stage that never came up); the message says why (courtloc.cli: one
+    line, exit 1: what was asked was right, the run failed)."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message, RUN_EXIT)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -59,10 +69,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera", default=None, help="camera name or JSON path (default: the court's own)")
     parser.add_argument("--scenario", default=",".join(SCENARIOS),
                         help=f"comma-separated scenarios (default all: {','.join(SCENARIOS)})")
-    parser.add_argument("--seconds", type=float, default=30.0, help="sim seconds per scenario (frames / fps)")
-    parser.add_argument("--fps", type=float, default=30.0, help="camera rate")
+    parser.add_argument("--seconds", type=positive_float, default=30.0,
+                        help="sim seconds per scenario (frames / fps)")
+    parser.add_argument("--fps", type=positive_float, default=30.0, help="camera rate")
     parser.add_argument("--seed", type=int, default=1, help="trajectory and rendering seed")
-    parser.add_argument("--json", type=Path, default=None, help="write the report here")
+    add_json_argument(parser, "the report (default: printed to standard output)")
     parser.add_argument("--config", type=Path, default=None,
                         help="deployment TOML whose stage settings to use (its bus, router, court and camera "
                              "source are replaced by the bench's)")
@@ -90,29 +101,23 @@ def variants(sc, fusion: str) -> list[str]:  # noqa: ANN001
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        names = [n.strip() for n in args.scenario.split(",") if n.strip()]
-        scenarios = [scenario(n, args.court, args.seconds, args.seed) for n in names]
-        if not scenarios:
-            raise ValueError("no scenario given")
-        if args.seconds <= 0 or args.fps <= 0:
-            raise ValueError("--seconds and --fps must be positive")
-        infer_fields = _parse_fields(args.infer)
-        report: dict[str, Any] = {}
-        for sc in scenarios:
-            runs = {}
-            for variant in variants(sc, args.fusion):
-                runs[variant] = run_scenario(sc, args, infer_fields, fused=variant == "fused")
-                _print_row(sc.name if len(runs) == 1 and variant == "vision_only" else f"{sc.name}/{variant}",
-                           runs[variant])
-            # One run: the scenario's keys as before (with "fusion" saying which); both: side by side.
-            report[sc.name] = next(iter(runs.values())) if len(runs) == 1 else {"description": sc.description, **runs}
-    except (BenchError, ValueError, OSError) as exc:
-        if args.verbose:
-            raise
-        # One line, even for a multi-line reason (a config error lists its fields on their own lines).
-        print(f"courtloc bench twin: {' '.join(str(exc).split())}", file=sys.stderr)
-        return 1
+    # A mistake raises, named (UsageError, a config or validation error; BenchError when a run cannot be
+    # measured): courtloc.cli prints it as one line. What the command line asks is checked before any run.
+    names = [n.strip() for n in args.scenario.split(",") if n.strip()]
+    scenarios = build_scenarios(names, args)
+    infer_fields = _parse_fields(args.infer)
+    # The deployment of the first run, built and dropped: a bad --config or --infer field fails here, before
+    # a stage starts (each run builds its own again with its port and store).
+    deployment_for(scenarios[0], args, _free_port(), args.store or Path("store"), infer_fields)
+    report: dict[str, Any] = {}
+    for sc in scenarios:
+        runs = {}
+        for variant in variants(sc, args.fusion):
+            runs[variant] = run_scenario(sc, args, infer_fields, fused=variant == "fused")
+            _print_row(sc.name if len(runs) == 1 and variant == "vision_only" else f"{sc.name}/{variant}",
+                       runs[variant])
+        # One run: the scenario's keys as before (with "fusion" saying which); both: side by side.
+        report[sc.name] = next(iter(runs.values())) if len(runs) == 1 else {"description": sc.description, **runs}
     report["run"] = {"court": args.court, "camera": args.camera, "seconds": args.seconds, "fps": args.fps,
                      "seed": args.seed, "tell_start": args.tell_start, "scenarios": names, "fusion": args.fusion,
                      "load_avg": list(os.getloadavg()), "cpus": os.cpu_count(),
@@ -120,13 +125,48 @@ def run(args: argparse.Namespace) -> int:
     text = json.dumps(report, indent=1)
     if args.markdown is not None:
         fused = any(r.get("fusion") == "fused" for _, r in scenario_rows(report))
+        args.markdown.parent.mkdir(parents=True, exist_ok=True)
         args.markdown.write_text(markdown_table(report) + "\n" + ("\n" + fusion_table(report) + "\n" if fused else ""))
-    if args.json is not None:
+    if args.json is not None and not json_to_stdout(args.json):
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(text + "\n")
-    else:
-        print(text)
+    (args.json or json_output(JSON_STDOUT)).write_text(text + "\n")  # `--json -` or none: standard output
     return 0
+
+
+def build_scenarios(names: list[str], args: argparse.Namespace) -> list:
+    """The scenarios asked for, on a court and camera that exist: a mistake in any is one line naming it."""
+    if not names:
+        raise UsageError(f"--scenario {args.scenario!r}: no scenario given; known: {', '.join(SCENARIOS)}")
+    unknown = [n for n in names if n not in SCENARIOS]
+    if unknown:
+        raise UsageError(f"--scenario: unknown scenario {', '.join(map(repr, unknown))}; "
+                         f"known: {', '.join(SCENARIOS)}")
+    try:
+        load_court(args.court)
+    except ValueError as exc:  # an unknown name, or a court JSON that is not one
+        raise UsageError(f"--court {args.court}: {_first_error(exc)}") from exc
+    if args.camera is not None:
+        try:
+            load_camera(args.camera)
+        except ValueError as exc:
+            raise UsageError(f"--camera {args.camera}: {_first_error(exc)}") from exc
+    built = []
+    for name in names:
+        try:
+            built.append(scenario(name, args.court, args.seconds, args.seed))
+        except ValueError as exc:  # times scaled from --seconds that no longer make a scenario
+            raise UsageError(f"--seconds {args.seconds:g} is too short for scenario {name!r}: "
+                             f"{_first_error(exc)}") from exc
+    return built
+
+
+def _first_error(exc: ValueError) -> str:
+    """A ValueError's reason in one line; for a pydantic ValidationError its first error, without its URL."""
+    if isinstance(exc, ValidationError):
+        error = exc.errors(include_url=False)[0]
+        where = ".".join(str(p) for p in error.get("loc", ()))
+        return f"{where + ': ' if where else ''}{str(error.get('msg', 'invalid')).removeprefix('Value error, ')}"
+    return " ".join(str(exc).split())
 
 
 def markdown_table(report: dict[str, Any]) -> str:
@@ -265,83 +305,78 @@ class _Record:
     undecodable: int = 0
 
 
-def _recorder_class():  # noqa: ANN202 - the class needs zenoh, imported only when a bench runs
+class TwinRecorder(BusWatcher):
+    """The watcher (liveliness, health) plus every pose and truth, decoded on its own thread."""
 
-    class TwinRecorder(BusWatcher):
-        """The watcher (liveliness, health) plus every pose and truth, decoded on its own thread."""
+    def __init__(self, config) -> None:  # noqa: ANN001
+        super().__init__(config)
+        self.record = _Record()
+        self.subscribed = threading.Event()
+        self._samples: queue.Queue = queue.Queue()
+        self._progress = threading.Condition()
+        self._decoder = threading.Thread(target=self._decode, name="twin-recorder", daemon=True)
 
-        def __init__(self, config) -> None:  # noqa: ANN001
-            super().__init__(config)
-            self.record = _Record()
-            self.subscribed = threading.Event()
-            self._samples: queue.Queue = queue.Queue()
-            self._progress = threading.Condition()
-            self._decoder = threading.Thread(target=self._decode, name="twin-recorder", daemon=True)
+    def extra_subscribers(self, zsession):  # noqa: ANN001, ANN201
+        robot = self.config.robot_id
+        subs = [zsession.declare_subscriber(TOPICS[path].key(robot), self._keep(path))
+                for path in ("camera/ground_truth", "infer/pose")]
+        self._decoder.start()
+        self.subscribed.set()
+        return subs
 
-        def extra_subscribers(self, zsession):  # noqa: ANN001, ANN201
-            robot = self.config.robot_id
-            subs = [zsession.declare_subscriber(TOPICS[path].key(robot), self._keep(path))
-                    for path in ("camera/ground_truth", "infer/pose")]
-            self._decoder.start()
-            self.subscribed.set()
-            return subs
+    def _keep(self, path: str):  # noqa: ANN202 - zenoh callback: hand the payload over, nothing else
+        def on_sample(sample) -> None:  # noqa: ANN001
+            self._samples.put((path, bytes(sample.payload)))
+        return on_sample
 
-        def _keep(self, path: str):  # noqa: ANN202 - zenoh callback: hand the payload over, nothing else
-            def on_sample(sample) -> None:  # noqa: ANN001
-                self._samples.put((path, bytes(sample.payload)))
-            return on_sample
+    def _decode(self) -> None:
+        # Until stopped, then whatever is still queued: the last frames count too.
+        while not (self._stop.is_set() and self._samples.empty()):
+            try:
+                path, payload = self._samples.get(timeout=0.5)
+            except queue.Empty:
+                continue
+            try:
+                message = codec.decode(payload, TOPICS[path].message)
+            except codec.DecodeError:
+                self.record.undecodable += 1
+                continue
+            header = message.header
+            if isinstance(message, GroundTruth):
+                sample = TruthSample(header.seq, header.capture_mono_ns, message.x, message.y, message.yaw)
+                with self._progress:
+                    self.record.truths.append(sample)
+                    self.record.last_seq = max(self.record.last_seq, header.seq)
+                    self._progress.notify_all()
+            elif isinstance(message, Pose):
+                stamp = next((s for s in reversed(header.stamps) if s.stage == "infer"), header.stamps[-1])
+                self.record.poses.append(PoseSample(header.capture_mono_ns, stamp.mono_ns, message.x, message.y,
+                                                    message.yaw, header.valid, message.reason))
 
-        def _decode(self) -> None:
-            # Until stopped, then whatever is still queued: the last frames count too.
-            while not (self._stop.is_set() and self._samples.empty()):
-                try:
-                    path, payload = self._samples.get(timeout=0.5)
-                except queue.Empty:
-                    continue
-                try:
-                    message = codec.decode(payload, TOPICS[path].message)
-                except codec.DecodeError:
-                    self.record.undecodable += 1
-                    continue
-                header = message.header
-                if isinstance(message, GroundTruth):
-                    sample = TruthSample(header.seq, header.capture_mono_ns, message.x, message.y, message.yaw)
-                    with self._progress:
-                        self.record.truths.append(sample)
-                        self.record.last_seq = max(self.record.last_seq, header.seq)
-                        self._progress.notify_all()
-                elif isinstance(message, Pose):
-                    stamp = next((s for s in reversed(header.stamps) if s.stage == "infer"), header.stamps[-1])
-                    self.record.poses.append(PoseSample(header.capture_mono_ns, stamp.mono_ns, message.x, message.y,
-                                                        message.yaw, header.valid, message.reason))
+    def wait_seq(self, seq: int, timeout: float) -> bool:
+        with self._progress:
+            return self._progress.wait_for(lambda: self.record.last_seq >= seq, timeout)
 
-        def wait_seq(self, seq: int, timeout: float) -> bool:
-            with self._progress:
-                return self._progress.wait_for(lambda: self.record.last_seq >= seq, timeout)
+    def _on_liveliness(self, sample) -> None:  # noqa: ANN001
+        super()._on_liveliness(sample)
+        with self._progress:
+            self._progress.notify_all()
 
-        def _on_liveliness(self, sample) -> None:  # noqa: ANN001
-            super()._on_liveliness(sample)
-            with self._progress:
-                self._progress.notify_all()
+    def wait_alive(self, names: tuple[str, ...], timeout: float) -> bool:
+        def all_alive() -> bool:
+            with self._lock:
+                return set(names) <= self.state.alive
+        with self._progress:
+            return self._progress.wait_for(all_alive, timeout)
 
-        def wait_alive(self, names: tuple[str, ...], timeout: float) -> bool:
-            def all_alive() -> bool:
-                with self._lock:
-                    return set(names) <= self.state.alive
-            with self._progress:
-                return self._progress.wait_for(all_alive, timeout)
-
-        def close(self) -> None:
-            super().close()
-            if self._decoder.is_alive():
-                self._decoder.join(timeout=5.0)
-
-    return TwinRecorder
+    def close(self) -> None:
+        super().close()
+        if self._decoder.is_alive():
+            self._decoder.join(timeout=5.0)
 
 
 def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any],  # noqa: ANN001
                  fused: bool = False) -> dict[str, Any]:
-
     with tempfile.TemporaryDirectory(prefix="courtloc-twin-") as tmp:
         folder = Path(tmp)
         log_dir = args.logs / (f"{sc.name}_fused" if fused else sc.name) if args.logs else folder / "logs"
@@ -349,7 +384,7 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any],  # 
         config = deployment_for(sc, args, _free_port(), args.store or folder / "store", infer_fields,
                                 mcu_link=folder / "mcu" if fused else None)
         supervisor = Supervisor(config, write_effective_config(config, folder), log_dir)
-        recorder = _recorder_class()(config)
+        recorder = TwinRecorder(config)
         stop = threading.Event()
         children = {c.name: c for c in supervisor.children}
         frames = int(math.ceil(args.seconds * args.fps))

@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from courtloc.lab.metrics import WRONG_M, wrap_angle  # one "valid and wrong" threshold for eval and bench
+from courtloc.lab.metrics import WRONG_M  # one "valid and wrong" threshold for eval and bench
+from courtloc.world.angles import wrap_angle
 
 MAX_RUNS = 20
 

@@ -33,8 +33,9 @@ EPILOG = """\
 conventions of every command:
   --json FILE   write the command's JSON result to FILE; `--json -` writes it to standard output
                 instead of the text report
-  --timeout S   commands that join a robot's bus (run, record, replay, monitor, model, dataset capture)
-                wait for its router up to S seconds, naming the endpoint, then give up with one line
+  --timeout S   commands that join a robot's bus (run, record, replay, monitor, model, pose, dataset
+                capture, calibrate mount --live, ros bridge, foxglove) wait for its router up to S
+                seconds, naming the endpoint, then give up with one line
   a mistake (a missing file, a bad number, an unknown name, no router) is one line on standard error and
   a non-zero exit (2: the command line or an input file, 1: the run failed); -v adds the traceback
 """

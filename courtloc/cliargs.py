@@ -51,8 +51,12 @@ def nonnegative_float(text: str) -> float:
     return value
 
 
-def finite_float(text: str) -> float:
-    return _number(text, float)
+def port_number(text: str) -> int:
+    """A TCP port to serve on: 0..65535 (0: any free port)."""
+    value = int(_number(text, int))
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a TCP port 0..65535, got {value}")
+    return value
 
 
 class _StdoutPath(type(Path())):  # type: ignore[misc]  # the concrete Path class of this platform

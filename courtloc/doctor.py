@@ -24,7 +24,7 @@ from typing import Any, Literal
 import zenoh
 from cv2 import videoio_registry
 
-from courtloc.common.config_loader import ConfigError
+from courtloc.cliargs import add_json_argument, json_to_stdout
 from courtloc.services.deployment import load_deployment
 
 KERNELS = {"radial scan": "courtloc.scan._scan_kernel", "pose fit": "courtloc.localizer._fit_kernel"}
@@ -216,7 +216,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     doctor = sub.add_parser("doctor", help="what this machine has (OpenCV, onnxruntime, kernels, SHM, clock) and "
                                            "what a deployment needs from it")
     doctor.add_argument("--config", type=Path, default=None, help="deployment TOML (default: built-in)")
-    doctor.add_argument("--json", action="store_true", help="print one JSON object instead of the report")
+    add_json_argument(doctor, "the machine's facts and the deployment's needs")
     doctor.set_defaults(func=run)
 
 
@@ -245,15 +245,11 @@ def _report(facts: dict[str, Any], needs: list[Need], config_name: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        config = load_deployment(args.config)
-    except (ConfigError, ValueError, OSError) as exc:
-        print(" ".join(str(exc).split()), file=sys.stderr)
-        return 2
+    config = load_deployment(args.config)  # a bad file or field raises, named (courtloc.cli: one line)
     facts = machine_facts()
     needs = deployment_needs(config, facts)
-    if args.json:
-        print(json.dumps({"machine": facts, "needs": [asdict(n) for n in needs]}))
-    else:
+    if args.json is not None:
+        args.json.write_text(json.dumps({"machine": facts, "needs": [asdict(n) for n in needs]}))
+    if not json_to_stdout(args.json):
         print(_report(facts, needs, str(args.config) if args.config else "the built-in deployment"))
     return 1 if any(n.level == "fail" for n in needs) else 0

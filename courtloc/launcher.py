@@ -6,6 +6,9 @@ to print one live status line, and writes a JSON summary on exit.
 
 It refuses to start when its router cannot listen (the port is taken, e.g. by another pipeline):
 stages started anyway would join that pipeline's router under the same robot id and mix its data.
+Later, when its router dies and another pipeline's router takes the port before ours is back, the stages
+(clients reconnecting to the same endpoint) must not join that one either: the router gets a zenoh id of
+this run, and each stage exits when connected to a router with another id (`--expect-router`).
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, TextIO
 
+from courtloc.common.bus import new_router_id
 from courtloc.port_holder import endpoint_port, port_holder
 from courtloc.router_process import router_argv
 from courtloc.services.deployment import DeploymentConfig
@@ -111,16 +115,23 @@ class Supervisor:
 
     def __post_init__(self) -> None:
         launcher = self.config.launcher
+        # Our router's identity, new each run and kept across its restarts: a stage connected to a router with
+        # another id (another pipeline's, which took the port while ours was down) exits, and is restarted until
+        # ours is back. Only for client stages: a client has exactly one router, while a peer may also link to
+        # routers ours is connected to ([router] connect) by gossip.
+        self.router_id = new_router_id() if launcher.run_router else None
+        expect = self.router_id if self.config.zenoh.mode == "client" else None
         if launcher.run_router:
-            self.children.append(Child("router", router_argv(router_settings(self.config)),
+            self.children.append(Child("router", router_argv(router_settings(self.config, zenoh_id=self.router_id)),
                                        launcher.router_restart_backoff_s, launcher.restart_backoff_s,
                                        ready_line="router listening"))
         for name in launcher.services:
             # The first start is a new run (a pose saved by an earlier run is not its evidence); a restart
             # resumes mid-run from the pose its predecessor saved.
-            self.children.append(Child(name, stage_argv(name, self.config_path),
+            self.children.append(Child(name, stage_argv(name, self.config_path, self.config, expect_router=expect),
                                        launcher.restart_backoff_s, launcher.restart_backoff_max_s,
-                                       first_argv=stage_argv(name, self.config_path, fresh_run=True)))
+                                       first_argv=stage_argv(name, self.config_path, self.config, fresh_run=True,
+                                                             expect_router=expect)))
 
     def start_all(self, ready_timeout_s: float = 15.0) -> None:
         """The router first: stages started after it is listening connect at once. A router that does
@@ -187,7 +198,6 @@ def write_effective_config(config: DeploymentConfig, folder: Path) -> Path:
 
 def run_up(config: DeploymentConfig, duration_s: float | None, summary_path: Path | None,
            stop: threading.Event, status_stream: TextIO = sys.stderr) -> dict:
-
     with tempfile.TemporaryDirectory(prefix="courtloc-up-") as tmp:
         folder = Path(tmp)
         log_dir = Path(os.environ.get("COURTLOC_LOG_DIR", folder))

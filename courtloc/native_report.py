@@ -12,7 +12,7 @@ import sys
 # module, what runs instead, how much slower (docs/measurements.md: bench preprocess / bench localize)
 KERNELS: tuple[tuple[str, str, str], ...] = (
     ("courtloc.scan._scan_kernel",
-     "the numpy radial scan (services/preprocess/radial_scan.py)", "~1.8x slower per frame"),
+     "the numpy radial scan (scan/radial_scan.py)", "~1.8x slower per frame"),
     ("courtloc.localizer._fit_kernel",
      "the numpy pose fit (localizer/fit.py) with onnxruntime's floor lookup", "~10x slower per tracked frame"),
 )

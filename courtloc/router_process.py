@@ -14,10 +14,10 @@ from pathlib import Path
 from typing import Optional
 
 import zenoh
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, field_validator
 
 from courtloc.cli_errors import RUN_EXIT
-from courtloc.common.bus import ZenohConfig, build_zenoh_config
+from courtloc.common.bus import ZenohConfig, build_zenoh_config, check_zenoh_id
 from courtloc.common.exposure import insecure_exposure, warn_while_insecure
 from courtloc.common.security import router_settings
 from courtloc.common.signals import stop_on_signals
@@ -38,6 +38,14 @@ class RouterSettings(BaseModel):
     secure_dir: Optional[Path] = None
     zenoh_config_file: Optional[Path] = None
     shared_memory: bool = True
+    # `courtloc up` gives its router a fresh id per run and tells its stages; a stage connected to a router
+    # with another id (another pipeline's, on the port after ours died) leaves (runtime.Service).
+    zenoh_id: Optional[str] = None
+
+    @field_validator("zenoh_id")
+    @classmethod
+    def _valid_zenoh_id(cls, value: Optional[str]) -> Optional[str]:
+        return None if value is None else check_zenoh_id(value)
 
 
 def router_argv(settings: RouterSettings, verbose: int = 0) -> list[str]:
@@ -50,6 +58,8 @@ def open_router(settings: RouterSettings) -> zenoh.Session:
     zcfg = build_zenoh_config(ZenohConfig(mode="router", connect=settings.connect, listen=settings.listen,
                                           config_file=settings.zenoh_config_file,
                                           shared_memory=settings.shared_memory))
+    if settings.zenoh_id is not None:
+        zcfg.insert_json5("id", json.dumps(settings.zenoh_id))
     if settings.secure_dir is not None:
         for path, value in {**router_settings(settings.secure_dir),
                             "access_control": access_control(settings.robot_id)}.items():

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from courtloc.cli_errors import UsageError
 from courtloc.cliargs import add_json_argument, json_to_stdout, nonnegative_float
-from courtloc.services.shooter_bridge.config import load_shooter_config, make_rpm_source
+from courtloc.services.shooter_bridge.config import ShooterConfig, load_shooter_config, make_rpm_source
 from courtloc.shot import ballistics
 from courtloc.shot.rpm import RpmTable, TableError
 
@@ -32,8 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     rpm.set_defaults(func=run_rpm)
 
 
-def _load(config_path: Path | None):  # noqa: ANN202 - ShooterConfig, imported lazily
-
+def _load(config_path: Path | None) -> ShooterConfig:
     return load_shooter_config(config_path)  # a bad file or field raises ConfigError, named: one line
 
 

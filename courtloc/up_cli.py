@@ -33,6 +33,8 @@ def run(args: argparse.Namespace) -> int:
     if args.model_store is not None:
         config = config.model_copy(update={"infer": config.infer.model_copy(update={"store": args.model_store.resolve()})})
     if "infer" in config.launcher.services:
+        if Path(config.infer.store).exists() and not Path(config.infer.store).is_dir():
+            raise UsageError(f"model store {config.infer.store} is not a folder (--model-store or [infer] store)")
         print(f"model store {config.infer.store}: serving {_active_model(config.infer.store)}", flush=True)
     stop = stop_on_signals()
     try:

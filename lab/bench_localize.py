@@ -80,7 +80,6 @@ def run(args: argparse.Namespace) -> int:
     compiled = kernel_active()
     sequential = None
     if args.compare_sequential:
-
         loc = predictor.localizer
         sequential = GeometricLocalizer(loc.court, loc.camera, loc.config, field=loc.field, batch_starts=False)
 

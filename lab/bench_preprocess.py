@@ -22,7 +22,7 @@ import time
 import cv2
 import numpy as np
 
-from courtloc.cliargs import add_json_argument, positive_float, positive_int
+from courtloc.cliargs import add_json_argument, json_to_stdout, positive_float, positive_int
 from courtloc.scan.config import PreprocessConfig
 from courtloc.scan.hsv_mask import WhiteMask
 from courtloc.scan.preprocessor import Preprocessor
@@ -142,7 +142,8 @@ def run(args: argparse.Namespace) -> int:
         "machine": platform.machine(),
     }
     text = json.dumps(report, indent=2)
-    print(text)
+    if not json_to_stdout(args.json):  # `--json -`: printed once, by the write below
+        print(text)
     if args.json is not None:
         args.json.write_text(text + "\n")
     return 0 if mismatches == 0 else 1

@@ -9,17 +9,17 @@ import sys
 import tempfile
 from pathlib import Path
 
-from pydantic import ValidationError
-
+from courtloc.cli_errors import UsageError
+from courtloc.cliargs import add_json_argument, json_to_stdout, positive_int
+from courtloc.common.bus import wait_for_router
 from courtloc.lab.intrinsics import (
     Board,
-    IntrinsicsError,
     IntrinsicsOptions,
     calibrate_intrinsics,
     image_files,
     import_camera_info,
 )
-from courtloc.lab.mount import MountError, PoseFrames, fit_mount, hits_of_frames, mounted_camera
+from courtloc.lab.mount import PoseFrames, fit_mount, hits_of_frames, mounted_camera
 from courtloc.recording.busargs import add_client_arguments, client_deployment
 from courtloc.sim.live_frames import grab_frames
 from courtloc.world.camera import load_camera
@@ -55,7 +55,8 @@ def register_calibrate_verbs(verbs: argparse._SubParsersAction) -> None:
                    help="folder of frames taken at the matching --pose")
     m.add_argument("--live", dest="mount_live", action="store_true",
                    help="take the frames of the (single) --pose from the running robot's camera/frame instead")
-    m.add_argument("--live-frames", dest="mount_live_n", type=int, default=5, help="frames to take with --live")
+    m.add_argument("--live-frames", dest="mount_live_n", type=positive_int, default=5,
+                   help="frames to take with --live")
     m.add_argument("--save", dest="mount_save", type=Path, default=None,
                    help="with --live: keep the frames in this folder (default: a new temporary folder)")
 
@@ -66,13 +67,8 @@ def register_calibrate_verbs(verbs: argparse._SubParsersAction) -> None:
                    help="starting pitch down, radians (default: searched)")
     m.add_argument("--check", action="store_true", help="print the residual of every court line, pixels")
     m.add_argument("--out", dest="mount_out", default=None, help="write the mounted camera JSON here")
-    m.add_argument("--json", dest="mount_json", action="store_true", help="print the result as JSON")
+    add_json_argument(m, "the fitted mount")
     m.set_defaults(func=_mount)
-
-
-def _fail(message: str) -> int:
-    print(f"error: {message}", file=sys.stderr)
-    return 2
 
 
 def _write_camera(camera, path: str) -> None:
@@ -81,23 +77,21 @@ def _write_camera(camera, path: str) -> None:
 
 def _intrinsics(args: argparse.Namespace) -> int:
     name = args.name or Path(args.out).stem
-    try:
-        if args.camera_info:
-            camera = import_camera_info(args.camera_info, name=name)
-            _write_camera(camera, args.out)
-            print(f"fx {camera.fx:.2f} fy {camera.fy:.2f} cx {camera.cx:.2f} cy {camera.cy:.2f} "
-                  f"({camera.width}x{camera.height}), k1 {camera.k1:.5f} k2 {camera.k2:.5f} p1 {camera.p1:.6f} "
-                  f"p2 {camera.p2:.6f} k3 {camera.k3:.5f}")
-            print(f"camera written to {args.out} (mount still to fit: courtloc calibrate mount)")
-            return 0
-        if not args.board or args.square is None:
-            return _fail("--images needs --board COLSxROWS and --square METRES")
-        board = Board.parse(args.board, args.square)
-        options = IntrinsicsOptions(min_views=args.min_views, max_sharpness_px=args.max_blur, fit_k3=args.fit_k3,
-                                    name=name)
-        result = calibrate_intrinsics(image_files(args.images), board, options)
-    except (IntrinsicsError, ValidationError) as exc:
-        return _fail(_one_line(exc))
+    # A bad file, board, view or field raises (IntrinsicsError is a ValueError): one line from courtloc.cli.
+    if args.camera_info:
+        camera = import_camera_info(args.camera_info, name=name)
+        _write_camera(camera, args.out)
+        print(f"fx {camera.fx:.2f} fy {camera.fy:.2f} cx {camera.cx:.2f} cy {camera.cy:.2f} "
+              f"({camera.width}x{camera.height}), k1 {camera.k1:.5f} k2 {camera.k2:.5f} p1 {camera.p1:.6f} "
+              f"p2 {camera.p2:.6f} k3 {camera.k3:.5f}")
+        print(f"camera written to {args.out} (mount still to fit: courtloc calibrate mount)")
+        return 0
+    if not args.board or args.square is None:
+        raise UsageError("--images needs --board COLSxROWS and --square METRES")
+    board = Board.parse(args.board, args.square)
+    options = IntrinsicsOptions(min_views=args.min_views, max_sharpness_px=args.max_blur, fit_k3=args.fit_k3,
+                                name=name)
+    result = calibrate_intrinsics(image_files(args.images), board, options)
     print(result.report())
     _write_camera(result.camera, args.out)
     print(f"camera written to {args.out} (mount still to fit: courtloc calibrate mount)")
@@ -105,35 +99,32 @@ def _intrinsics(args: argparse.Namespace) -> int:
 
 
 def _mount(args: argparse.Namespace) -> int:
+    # A bad file, name, pose or field raises (MountError is a ValueError), and no router raises
+    # RouterUnreachable (exit 1: the command line was right): one line from courtloc.cli.
     if args.mount_live:
         if len(args.mount_pose) != 1 or args.mount_frames:
-            return _fail("--live takes the frames of exactly one --pose (and no --frames)")
-        try:
-            args.mount_frames = [str(_live_frames(args))]
-        except (ValueError, OSError) as exc:
-            return _fail(_one_line(exc))
+            raise UsageError("--live takes the frames of exactly one --pose (and no --frames)")
+        args.mount_frames = [str(_live_frames(args))]
     if len(args.mount_pose) != len(args.mount_frames):
-        return _fail(f"{len(args.mount_pose)} --pose and {len(args.mount_frames)} --frames: "
-                     "give one --frames per --pose")
-    try:
-        court = load_court(args.mount_court)
-        camera = load_camera(args.mount_camera)
-        sets = [PoseFrames(pose=PoseFrames.parse_pose(p), frames=Path(f))
-                for p, f in zip(args.mount_pose, args.mount_frames)]
-        dots = hits_of_frames(sets)
-        result = fit_mount(court, dots, camera, poses=len(sets), initial_height=args.mount_height,
-                           initial_pitch=args.mount_pitch)
-    except (MountError, ValidationError, ValueError, OSError) as exc:
-        return _fail(_one_line(exc))
-    if args.mount_json:
-        print(result.model_dump_json(indent=1))
-    else:
+        raise UsageError(f"{len(args.mount_pose)} --pose and {len(args.mount_frames)} --frames: "
+                         "give one --frames per --pose")
+    court = load_court(args.mount_court)
+    camera = load_camera(args.mount_camera)
+    sets = [PoseFrames(pose=PoseFrames.parse_pose(p), frames=Path(f))
+            for p, f in zip(args.mount_pose, args.mount_frames)]
+    dots = hits_of_frames(sets)
+    result = fit_mount(court, dots, camera, poses=len(sets), initial_height=args.mount_height,
+                       initial_pitch=args.mount_pitch)
+    if args.json is not None:
+        args.json.write_text(result.model_dump_json(indent=1))
+    quiet = json_to_stdout(args.json)  # stdout is the JSON's
+    if not quiet:
         print(result.report())
         if args.check:
             print(result.check_report())
     if args.mount_out:
         _write_camera(mounted_camera(result, Path(args.mount_out).stem), args.mount_out)
-        print(f"camera written to {args.mount_out}", file=sys.stderr if args.mount_json else sys.stdout)
+        print(f"camera written to {args.mount_out}", file=sys.stderr if quiet else sys.stdout)
     return 0
 
 
@@ -141,12 +132,8 @@ def _live_frames(args: argparse.Namespace) -> Path:
     """Frames from the robot's running camera stage, saved where `calibrate mount` reads them."""
 
     deployment = client_deployment(args)
+    wait_for_router(deployment.zenoh, args.timeout)  # names the endpoint; gives up after --timeout S
     folder = args.mount_save or Path(tempfile.mkdtemp(prefix="courtloc-mount-"))
     saved = grab_frames(deployment.robot_id, deployment.zenoh, args.mount_live_n, folder)
     print(f"{len(saved)} live frames saved in {folder}", file=sys.stderr)
     return folder
-
-
-def _one_line(exc: Exception) -> str:
-    text = str(exc).strip()
-    return " ".join(text.split()) if text else type(exc).__name__

@@ -213,7 +213,6 @@ class Dataset:
     def _preprocess(self, frame: np.ndarray) -> np.ndarray:
         """Hits (N x 4 int16: row, col, ray, d) of a raw frame through the runtime preprocessor."""
         if self._preprocessor is None:
-
             self._preprocessor = Preprocessor(PreprocessConfig(frame_width=None, frame_height=None))
         return np.asarray(self._preprocessor.process(frame))
 

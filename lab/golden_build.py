@@ -24,8 +24,7 @@ GOLDEN_POSES: tuple[tuple[float, float, float], ...] = (
 )
 
 
-def render_golden(court, camera, poses=GOLDEN_POSES) -> list[GoldenFrame]:  # noqa: ANN001 - sim Court, CameraModel
-
+def render_golden(court, camera, poses=GOLDEN_POSES) -> list[GoldenFrame]:  # noqa: ANN001 - world Court, CameraModel
     renderer = Renderer(court, camera)
     preprocessor = Preprocessor(PreprocessConfig(frame_width=camera.width, frame_height=camera.height))
     return [GoldenFrame(preprocessor.process(renderer.render(pose)), camera.width, camera.height,

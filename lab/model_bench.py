@@ -39,7 +39,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _frames(args: argparse.Namespace):  # noqa: ANN202
-
     dataset = Dataset(args.data, csv_path=args.csv)
     chosen = dataset.indices_of(args.recordings) if args.recordings else np.arange(len(dataset))
     if args.frames and len(chosen) > args.frames:

@@ -19,7 +19,6 @@ OPSET = 17
 
 
 def build_graph(table: np.ndarray, height: int, width: int):  # -> onnx.ModelProto
-
     if table.shape != (height * width, 2):
         raise ValueError(f"floor table shape {table.shape} does not match a {width}x{height} frame")
     inits = [

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from courtloc.world.angles import wrap_angle
+
 GOLDEN_FILE = "golden.npz"
 MAX_FRAMES = 64
 MAX_HITS = 200_000  # all frames together; a frame has a few thousand
@@ -78,7 +80,7 @@ def load_golden(path: Path) -> list[GoldenFrame]:
 
 
 def _wrapped_deg(a: float, b: float) -> float:
-    return abs(math.degrees((a - b + math.pi) % (2 * math.pi) - math.pi))
+    return abs(math.degrees(wrap_angle(a - b)))
 
 
 @dataclass

@@ -143,7 +143,6 @@ class ManifestError(ValueError):
 
 
 def weights_sha256(model: "onnx.ModelProto") -> str:  # noqa: F821 - onnx imported lazily
-
     digest = hashlib.sha256()
     for tensor in model.graph.initializer:
         array = numpy_helper.to_array(tensor)
@@ -155,7 +154,6 @@ def weights_sha256(model: "onnx.ModelProto") -> str:  # noqa: F821 - onnx import
 
 
 def _load(onnx_path: Path, with_weights: bool) -> "onnx.ModelProto":  # noqa: F821
-
     if not Path(onnx_path).is_file():
         raise ManifestError(f"model file not found: {onnx_path}")
     return onnx.load(str(onnx_path), load_external_data=with_weights)

@@ -15,7 +15,6 @@ file name inside the package folder (manifest.package_part). Packages are built 
 from __future__ import annotations
 
 import hashlib
-import importlib.resources
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +22,7 @@ from pathlib import Path
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.manifest import MODEL_FILE, Manifest, ManifestError, package_part, read_manifest
 from courtloc.localizer.model_file import ModelFile
+from courtloc.models import bundled_root
 from courtloc.world.camera import CameraModel, load_camera
 from courtloc.world.court import Court, load_court
 
@@ -70,12 +70,6 @@ def load_package(model: ModelFile | Path, config_override: LocalizerConfig | Non
     camera = load_camera(parts["camera"])
     config = config_override or LocalizerConfig.model_validate(json.loads(parts["config"].read_text()))
     return Package(folder=folder, manifest=manifest, court=court, camera=camera, config=config)
-
-
-def bundled_root() -> Path:
-    """The folder of the packages shipped with courtloc (models/ in the source tree)."""
-
-    return Path(str(importlib.resources.files("courtloc.models")))
 
 
 def bundled_packages() -> dict[tuple[str, str], Path]:

@@ -1,16 +1,16 @@
 """CLI of the digital twin: `courtloc calibrate` (+ `intrinsics`, `mount`) and the `courtloc dataset` group.
 
-Extending `courtloc dataset`: add a module name to DATASET_COMMAND_MODULES; the module exposes
+Extending `courtloc dataset`: add the module to DATASET_COMMAND_MODULES; the module exposes
 `register_dataset(dataset_subparsers)` and adds its sub-command there with `set_defaults(func=handler)`,
 exactly like a top-level command module (handler(args) -> exit code; import heavy libraries inside it).
 """
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import sys
 import time
+from types import ModuleType
 
 import numpy as np
 
@@ -25,6 +25,7 @@ from courtloc.lab.calibrate import (
     nominal_camera,
 )
 from courtloc.lab.calibrate_cli import register_calibrate_verbs
+from courtloc.recording import cli as recording_cli
 from courtloc.sim.labels import lag_corrected, read_pose_csv
 from courtloc.sim.render import RenderOptions
 from courtloc.sim.synth import SynthConfig, synth
@@ -32,7 +33,7 @@ from courtloc.world.camera import load_camera
 from courtloc.world.court import load_court
 
 # Modules adding sub-commands to `courtloc dataset` (this module adds `synth` itself).
-DATASET_COMMAND_MODULES: tuple[str, ...] = ("courtloc.recording.cli",)
+DATASET_COMMAND_MODULES: tuple[ModuleType, ...] = (recording_cli,)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,8 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     dataset_sub = dataset.add_subparsers(dest="dataset_command", metavar="SUBCOMMAND")
     dataset.set_defaults(func=lambda args: (dataset.print_help(), 2)[1])
     _register_synth(dataset_sub)
-    for name in DATASET_COMMAND_MODULES:
-        importlib.import_module(name).register_dataset(dataset_sub)
+    for module in DATASET_COMMAND_MODULES:
+        module.register_dataset(dataset_sub)
 
 
 # ---- dataset synth -----------------------------------------------------------------------------------

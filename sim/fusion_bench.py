@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from courtloc.cliargs import JSON_STDOUT, add_json_argument, json_output
 from courtloc.lab.eval import default_model_path
 from courtloc.localizer import acquire
 from courtloc.localizer.odometry_fusion import FusionConfig, OdometryFusion, fused_track
@@ -44,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--blackout-s", type=float, default=2.0)
     parser.add_argument("--fps", type=float, default=30.0)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", type=Path, help="also write the result here")
+    add_json_argument(parser, "the result (printed as JSON without it)")
 
 
 def loop_trajectory(speed: float):  # noqa: ANN201
@@ -143,7 +144,5 @@ def run(args: argparse.Namespace) -> int:
     result = run_scenario(args.scenario, args.package, args.speed, args.duration, args.blackout_at, args.blackout_s,
                           args.fps, args.seed, kidnap_at=args.kidnap_at)
     text = json.dumps(result, indent=1)
-    print(text)
-    if args.json:
-        args.json.write_text(text + "\n")
+    (args.json or json_output(JSON_STDOUT)).write_text(text + "\n")  # the result is JSON either way
     return 0

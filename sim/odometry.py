@@ -19,7 +19,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from courtloc.common.messages import Odometry
 from courtloc.services.shooter_bridge.odometry import OdometryConfig, OdometryIntake
 from courtloc.services.shooter_bridge.protocol import OdometrySample, OdomFlag
-from courtloc.sim.trajectory import Trajectory, wrap_angle
+from courtloc.sim.trajectory import Trajectory
+from courtloc.world.angles import wrap_angle
 
 
 class OdometrySimConfig(BaseModel):

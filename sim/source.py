@@ -14,6 +14,7 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from courtloc.services.camera.config import DEFAULT_SIM_WAYPOINTS
 from courtloc.sim.render import Renderer, RenderOptions
 from courtloc.sim.trajectory import CsvTrajectory, KidnapTrajectory, RandomWalkTrajectory, WaypointTrajectory
 from courtloc.sim.twin_mcu import TwinMcu, TwinMcuConfig
@@ -22,9 +23,9 @@ from courtloc.world.court import load_court
 
 log = logging.getLogger(__name__)
 
-# A loop around the seed court that sees the key, the three-point line and the centre line.
-# Starts in the +x half, where the bundled localizer assumes a robot starts (its `half`), then tours both.
-DEFAULT_WAYPOINTS: list[list[float]] = [[3.0, -2.0], [3.0, 2.0], [-3.0, 2.0], [-3.0, -2.0]]
+# The default route is the deployment's too (it tells the infer stage where the simulated robot starts):
+# it lives with the camera config, which the robot side reads without importing the twin.
+DEFAULT_WAYPOINTS: list[list[float]] = DEFAULT_SIM_WAYPOINTS
 
 
 class SimSourceConfig(BaseModel):

@@ -22,6 +22,7 @@ from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.services_table import TOPICS, all_liveliness_key, service_of_liveliness_key
 from courtloc.router_process import RouterSettings, router_argv
+from courtloc.services.deployment import load_deployment
 from courtloc.stage_cli import stage_argv
 
 PYTHON = [sys.executable, "-m", "courtloc"]
@@ -117,10 +118,10 @@ def start_router(port: int) -> Proc:
 
 def start_stage(name: str, config_path: Path, verbose: bool = True) -> Proc:
     """The stage's own process, started as the launcher starts it: `courtloc run` checks the config and then
-    becomes this same command line (stage_argv), so going straight to it skips only the CLI's imports (~1.5 s
-    a stage). `courtloc run` itself is tested in test_config, test_realtime, test_security_own_credentials
-    and test_cli_mistakes."""
-    return Proc(stage_argv(name, config_path, verbose=1 if verbose else 0)).start()
+    becomes this same command line (stage_argv: a simulated camera is the twin's camera stage), so going
+    straight to it skips only the CLI's imports (~1.5 s a stage). `courtloc run` itself is tested in test_config,
+    test_realtime, test_security_own_credentials and test_cli_mistakes."""
+    return Proc(stage_argv(name, config_path, load_deployment(config_path), verbose=1 if verbose else 0)).start()
 
 
 class BusClient:

@@ -5,9 +5,11 @@ Layers, lowest first (a module imports only its own layer or lower ones):
   1  libraries: scan (the radial scan), localizer (the runtime localizer), shot (ballistics, RPM)
   2  stages: services/<stage> (config, service, entry point); a stage never imports another stage
   3  tools (courtloc/: CLI, launcher, pit tools, benches) and the lab (lab/, sim/ the twin, training/)
+Nothing on the robot side (layers 0-2) imports the twin, the lab or training, not even inside a function
+(the simulated camera is the twin's own camera stage, sim/camera_stage.py).
 No import circles among module-level imports. A function-local import is allowed only for an optional
-heavy dependency (torch and what imports it, matplotlib, tqdm, foxglove, rosbags, websockets) or the
-twin from the camera stage (the simulated camera), and it carries a `#` comment saying why.
+heavy dependency (torch and what imports it, matplotlib, tqdm, foxglove, rosbags, websockets), and it
+carries a `#` comment saying why.
 """
 from __future__ import annotations
 
@@ -24,10 +26,7 @@ LAYERS: dict[str, int] = {
 }
 ROBOT_SIDE = ("common", "world", "models", "scan", "localizer", "shot", "services")
 OPTIONAL_HEAVY = {"torch", "torchvision", "matplotlib", "tqdm", "foxglove", "rosbags", "websockets"}
-# (importer prefix, imported prefix): a lazy import the rules allow, with why.
-ALLOWED_LAZY_INTERNAL = {
-    ("courtloc.services.camera", "courtloc.sim"): "the simulated camera is the twin, loaded only when chosen",
-}
+OFF_ROBOT = ("sim", "lab", "training")  # what the robot side never imports: not lazily, not by name
 # (importer, third-party module): a lazy import of a required dependency the rules allow, with why.
 ALLOWED_LAZY_EXTERNAL = {
     ("courtloc.doctor", "cv2"): "the doctor reports a broken OpenCV install instead of dying with it",
@@ -52,9 +51,11 @@ def package_of(module: str) -> str:
     return parts[1] if len(parts) > 1 and parts[1] in LAYERS else ""
 
 
-def stage_of(module: str) -> str | None:
+def stage_of(module: str, stages: set[str]) -> str | None:
+    """'courtloc.services.infer.engine' or the stage package 'courtloc.services.infer' -> 'infer'; None for
+    a module that is no stage's (`stages`: the stage packages, courtloc.services.<folder>)."""
     parts = module.split(".")
-    return parts[2] if len(parts) > 3 and parts[1] == "services" else None
+    return parts[2] if len(parts) > 2 and ".".join(parts[:3]) in stages else None
 
 
 def module_files(repo: Path, package_dirs: dict[str, str]) -> dict[str, Path]:
@@ -101,6 +102,8 @@ def imports_of(module: str, path: Path) -> list[Import]:
                 stem = node.module or ""
             # `from pkg import sub` imports the submodule when there is one: both are recorded
             targets = [stem, *(f"{stem}.{alias.name}" for alias in node.names if stem.startswith(ROOT + "."))]
+        elif (named := _imported_by_name(node)) is not None:  # importlib.import_module("courtloc....")
+            targets = [named]
         else:
             continue
         local, type_only = context(node)
@@ -112,10 +115,24 @@ def imports_of(module: str, path: Path) -> list[Import]:
     return found
 
 
+def _imported_by_name(node: ast.AST) -> str | None:
+    """The module of `importlib.import_module("courtloc.x")` or `__import__("courtloc.x")` (a literal name of
+    ours): an import all the same, checked by the same rules."""
+    if not (isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant)):
+        return None
+    name = node.args[0].value
+    func = ast.unparse(node.func)
+    if func.split(".")[-1] in ("import_module", "__import__") and isinstance(name, str) and name.startswith(ROOT + "."):
+        return name
+    return None
+
+
 def violations(repo: Path, package_dirs: dict[str, str]) -> list[str]:
     files = module_files(repo, package_dirs)
     all_imports = [imp for name, path in files.items() for imp in imports_of(name, path)]
     internal = [i for i in all_imports if i.imported in files]
+    stages = {name for name, path in files.items()
+              if path.name == "__init__.py" and len(name.split(".")) == 3 and package_of(name) == "services"}
     torch_modules = {i.importer for i in all_imports
                      if not i.local and not i.type_only and i.imported.split(".")[0] == "torch"}
     problems: list[str] = []
@@ -124,16 +141,14 @@ def violations(repo: Path, package_dirs: dict[str, str]) -> list[str]:
         if imp.importer == imp.imported:
             continue
         a, b = package_of(imp.importer), package_of(imp.imported)
-        allowed = next((why for (src, dst), why in ALLOWED_LAZY_INTERNAL.items()
-                        if imp.importer.startswith(src) and imp.imported.startswith(dst)), None)
-        if LAYERS[b] > LAYERS[a] and not (allowed and imp.local):
+        if LAYERS[b] > LAYERS[a]:
             problems.append(f"{where}: {imp.importer} (layer {LAYERS[a]}) imports {imp.imported} (layer {LAYERS[b]})")
-        sa, sb = stage_of(imp.importer), stage_of(imp.imported)
+        sa, sb = stage_of(imp.importer, stages), stage_of(imp.imported, stages)
         if sa is not None and sb is not None and sa != sb:
             problems.append(f"{where}: stage {sa} imports stage {sb} ({imp.imported})")
-        if a in ROBOT_SIDE and b in ("sim", "lab", "training") and not (allowed and imp.local):
+        if a in ROBOT_SIDE and b in OFF_ROBOT:  # at import time, in a function or under TYPE_CHECKING alike
             problems.append(f"{where}: robot-side {imp.importer} imports {imp.imported}")
-        if imp.local and not (allowed or imp.imported in torch_modules):
+        if imp.local and imp.imported not in torch_modules:
             problems.append(f"{where}: function-local import of {imp.imported} in {imp.importer}")
         elif imp.local and not imp.commented:
             problems.append(f"{where}: function-local import of {imp.imported} without a comment saying why")

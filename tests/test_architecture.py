@@ -38,7 +38,14 @@ def _tree(tmp_path: Path, files: dict[str, str]) -> dict[str, str]:
 
 @pytest.mark.parametrize(("files", "expected"), [
     ({"services/a/x.py": "from courtloc.services.b import y\n", "services/b/y.py": ""}, "stage a imports stage b"),
+    ({"services/a/x.py": "import courtloc.services.b\n"}, "stage a imports stage b"),
+    ({"services/a/x.py": "from courtloc.services import b\n"}, "stage a imports stage b"),
     ({"localizer/x.py": "from courtloc.sim import r\n", "sim/r.py": ""}, "robot-side courtloc.localizer.x imports"),
+    # the robot side never imports the twin, not even in a function with a reason (the simulated camera once did)
+    ({"services/a/x.py": "def f():\n    from courtloc.sim import r  # the simulated camera\n", "sim/r.py": ""},
+     "robot-side courtloc.services.a.x imports courtloc.sim"),
+    ({"services/a/x.py": "import importlib\n\ndef f():\n    return importlib.import_module('courtloc.sim.r')\n",
+      "sim/r.py": ""}, "robot-side courtloc.services.a.x imports courtloc.sim.r"),
     ({"common/x.py": "from courtloc.services.a import y\n", "services/a/y.py": ""}, "(layer 0) imports"),
     ({"common/x.py": "import courtloc.common.y\n", "common/y.py": "import courtloc.common.x\n"}, "import circle"),
     ({"common/x.py": "def f():\n    import json\n"}, "function-local import of json"),

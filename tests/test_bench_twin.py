@@ -154,6 +154,25 @@ def test_bench_twin_refuses_an_unknown_scenario_in_one_line():
     assert result.stderr.strip().count("\n") == 0 and "unknown scenario 'rainy'" in result.stderr
 
 
+def test_json_dash_prints_the_report_alone_on_stdout_and_json_file_writes_it(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]):
+    """`--json -` as in every verb (courtloc.cli.EPILOG): the JSON on stdout, the rows on stderr; no file "-"."""
+    import courtloc.bench_twin as bench_twin
+    from courtloc.cli import exit_status
+
+    truths = _truths(10)
+    measured = {**twin_metrics([_pose(k, 0.01, True) for k in range(10)], truths, [], end_ns=10**10),
+                "fusion": "vision_only", "camera_fps": 10.0}
+    monkeypatch.setattr(bench_twin, "run_scenario", lambda sc, args, fields, fused=False: dict(measured))
+    monkeypatch.chdir(tmp_path)
+    assert exit_status(["bench", "twin", "--scenario", "clean", "--seconds", "1", "--json", "-"]) == 0
+    out = capsys.readouterr().out
+    assert json.loads(out)["clean"]["n"] == 10 and not (tmp_path / "-").exists()
+    written = tmp_path / "new" / "twin.json"
+    assert exit_status(["bench", "twin", "--scenario", "clean", "--seconds", "1", "--json", str(written)]) == 0
+    assert capsys.readouterr().out == "" and json.loads(written.read_text())["run"]["scenarios"] == ["clean"]
+
+
 def test_the_infer_stage_is_told_the_scenarios_start(tmp_path: Path):
     import argparse
 
@@ -202,7 +221,8 @@ def test_a_stage_that_cannot_start_fails_the_bench_at_once_in_one_line(tmp_path:
     assert result.returncode == 1
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "infer exited" in lines[0] and "Not a directory" in lines[0]
-    assert bad.returncode == 1 and bad.stderr.strip().count("\n") == 0 and "infer.threads" in bad.stderr
+    # A bad setting is a mistake in the command line (exit 2), refused before any stage starts.
+    assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "infer.threads" in bad.stderr
 
 
 def test_blackout_growth_is_what_a_consumer_trusting_the_flag_holds():

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import cv2
@@ -75,13 +76,18 @@ def test_intrinsics_mount_and_package_for_a_new_camera(board_views, court_frames
         argv += ["--pose", ",".join(str(v) for v in pose), "--frames", str(folder)]
     code, out, err = _run(argv, capsys)
     assert code == 0, err
-    assert "height" in out and "+-" in out and "median_px" in out  # the fit with its uncertainty, then --check
+    assert "median_px" in out  # --check: the residual per line, pixels
+    for name in ("height", "pitch", "roll", "mount_x", "mount_y", "mount_yaw"):  # each with its 1-sigma
+        assert re.search(rf"^{name} +[-+][0-9.]+ \+- [0-9.]+ (m|deg)$", out, re.MULTILINE), (name, out)
     assert "edge x = +5.03 m (facing +x)" in out  # the key's front edge, residual per line
     fitted = load_camera(mounted)
     assert fitted.fx == cam.fx  # intrinsics kept from the chessboard
     assert fitted.mount.height == pytest.approx(TRUE.mount.height, abs=0.01)
     assert math.degrees(abs(fitted.mount.pitch - TRUE.mount.pitch)) <= 0.3
     assert fitted.mount.x == pytest.approx(TRUE.mount.x, abs=0.03)
+    assert fitted.mount.y == pytest.approx(TRUE.mount.y, abs=0.03)
+    assert math.degrees(abs(fitted.mount.roll - TRUE.mount.roll)) <= 0.3
+    assert math.degrees(abs(fitted.mount.yaw - TRUE.mount.yaw)) <= 0.5
 
     package = tmp_path / "pkg"
     code, out, err = _run(["localizer", "build", "--court", COURT, "--camera", str(mounted), "--out", str(package)],

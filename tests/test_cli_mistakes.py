@@ -41,24 +41,58 @@ MISTAKES: list[tuple[str, str]] = [
     ("export {tmp}/missing.pt --out {tmp}/onnx", "missing.pt"),
     ("localizer crosseval --data {tmp}/missing --json -", "missing"),
     ("localizer residuals --data {data} --model {tmp}/missing", "missing"),
+    ("doctor --config {tmp}/missing.toml", "missing.toml"),
+    ("bench fusion --package {tmp}/missing", "missing"),
+    ("up --config {tmp}", "directory"),
+    ("up --model-store {text} --duration 1", "not a folder"),
+    ("bench twin --court {text} --scenario clean", "--court"),
+    ("bench twin --config {tmp}/missing.toml --scenario clean", "missing.toml"),
+    ("export rosbag2 {tmp}/missing.mcap {tmp}/bag", "missing.mcap"),
+    ("export rosbag2 {five} {tmp}", "exists"),
+    ("calibrate intrinsics --images {tmp} --out {tmp}/c.json", "--board"),
+    ("calibrate mount --court seed-gazebo --camera seed-gazebo --pose 1,2 --frames {tmp}", "X,Y,YAW"),
     # no router
     ("model list --timeout 0.5 --connect {nobody}", "{nobody}"),
     ("record {tmp}/rec.mcap --timeout 0.5 --connect {nobody}", "{nobody}"),
     ("monitor --port 0 --timeout 0.5 --connect {nobody}", "{nobody}"),
+    ("pose set 1 2 3 --timeout 0.5 --connect {nobody}", "{nobody}"),
+    ("ros bridge --timeout 0.5 --connect {nobody}", "{nobody}"),
+    ("foxglove --port 0 --timeout 0.5 --connect {nobody}", "{nobody}"),
+    ("calibrate mount --court seed-gazebo --camera {tmp}/cam.json --pose 1,2,0 --live --timeout 0.5 "
+     "--connect {nobody}", "{nobody}"),
     ("router --listen bogus", "bogus"),
     # bad numbers
     ("shooter rpm -1", "-1"),
     ("shooter rpm abc", "abc"),
+    ("shooter rpm nan", "nan"),
+    ("pose set 1 2 nan --connect {nobody}", "yaw"),
+    ("monitor --port 99999", "--port"),
+    ("foxglove --image-hz 0", "--image-hz"),
     ("dataset synth --court seed-gazebo --n 0 --out {tmp}/synth", "--n"),
     ("up --duration 0", "--duration"),
     ("model activate two", "two"),
     ("monitor --rate 100", "--rate"),
     ("replay {five} --speed 0", "--speed"),
     ("localizer crosseval --data {data} --json - --step 0", "--step"),
+    ("bench twin --seconds 0", "--seconds"),
+    ("bench twin --seconds 0.001 --scenario blackout", "--seconds"),
+    ("bench twin --fps nan", "--fps"),
+    ("bench twin --infer threads=0 --scenario clean", "infer.threads"),
+    ("bench twin --infer bad", "--infer"),
+    ("bench fuzz --seconds 0", "--seconds"),
+    ("bench fuzz --rate-hz -1", "--rate-hz"),
+    ("bench fuzz --fps nan", "--fps"),
     # unknown names
     ("run nosuchstage", "nosuchstage"),
     ("dataset synth --court nosuchcourt --n 2 --out {tmp}/synth", "nosuchcourt"),
     ("record {tmp}/rec.mcap --topics nosuch/topic", "nosuch/topic"),
+    ("bench twin --court nosuchcourt --scenario clean", "nosuchcourt"),
+    ("bench twin --camera nosuchcamera --scenario clean", "nosuchcamera"),
+    ("bench twin --scenario clean,rainy", "rainy"),
+    ("bench twin --scenario ,", "--scenario"),
+    ("bench twin --fusion maybe", "--fusion"),
+    ("bench fuzz --services camera nosuchstage", "nosuchstage"),
+    ("calibrate mount --court seed-gazebo --camera nosuchcamera --pose 1,2,0 --frames {tmp}", "nosuchcamera"),
 ]
 
 
@@ -71,6 +105,11 @@ AS_PROCESS = frozenset({
     "record {tmp}/rec.mcap --timeout 0.5 --connect {nobody}",
     "monitor --port 0 --timeout 0.5 --connect {nobody}",
     "router --listen bogus",
+    "pose set 1 2 3 --timeout 0.5 --connect {nobody}",
+    "ros bridge --timeout 0.5 --connect {nobody}",
+    "foxglove --port 0 --timeout 0.5 --connect {nobody}",
+    "calibrate mount --court seed-gazebo --camera {tmp}/cam.json --pose 1,2,0 --live --timeout 0.5 "
+    "--connect {nobody}",
 })
 
 
@@ -112,9 +151,35 @@ def test_every_mistake_is_one_line_and_a_failure(places: dict[str, str], capsys:
     for _, argv, word in cases:
         code, stderr = answers[id(argv)]
         lines = stderr.strip().splitlines()
-        if code == 0 or len(lines) != 1 or "Traceback" in stderr or word not in stderr:
+        # The line starts with the command it answers ("courtloc bench twin: ..."), as the shared handler says it.
+        said_by = "courtloc:" if argv[0] == "nosuchverb" else f"courtloc {argv[0]}"
+        if code == 0 or len(lines) != 1 or "Traceback" in stderr or word not in stderr \
+                or not stderr.startswith(said_by):
             wrong.append(f"courtloc {' '.join(argv)} -> exit {code}, stderr {stderr!r}")
     assert not wrong, "\n".join(wrong)
+
+
+def test_json_has_one_meaning_in_every_verb() -> None:
+    """Every `--json` takes FILE, `-` standing for standard output (courtloc.cli.EPILOG)."""
+    import argparse
+
+    from courtloc.cli import build_parser
+    from courtloc.cliargs import json_output, json_to_stdout
+
+    def walk(parser: argparse.ArgumentParser):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for child in action.choices.values():
+                    yield from walk(child)
+            elif "--json" in action.option_strings:
+                yield parser.prog, action
+
+    found = dict(walk(build_parser()))
+    assert {"courtloc bench twin", "courtloc bench fuzz", "courtloc pose set", "courtloc doctor"} <= set(found)
+    assert [prog for prog, action in found.items() if action.type is not json_output] == []
+    args = build_parser().parse_args(["bench", "twin", "--json", "-"])
+    assert json_to_stdout(args.json)
+    assert not json_to_stdout(build_parser().parse_args(["bench", "fuzz", "--json", "out.json"]).json)
 
 
 def test_verbose_shows_the_traceback(places: dict[str, str]) -> None:

@@ -38,7 +38,7 @@ def test_machine_facts_are_what_the_libraries_say(capsys: pytest.CaptureFixture[
     import cv2
     import onnxruntime
 
-    code, out, _ = _doctor(capsys, "--json")
+    code, out, _ = _doctor(capsys, "--json", "-")
     report = json.loads(out)
     machine = report["machine"]
     gst = re.search(r"^\s*GStreamer:\s*(.+)$", cv2.getBuildInformation(), re.MULTILINE)

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from extras import TORCH_MISSING
 
-torch = pytest.importorskip("torch")
+torch = pytest.importorskip("torch", reason=TORCH_MISSING)
 
 from courtloc.lab.golden_build import GOLDEN_POSES  # noqa: E402
 from courtloc.localizer.golden import load_golden, sidecar_path  # noqa: E402

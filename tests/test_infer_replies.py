@@ -8,6 +8,7 @@ from buskit import BusClient, free_port, start_router, start_stage, write_config
 
 from courtloc.common.control import Rollback
 from courtloc.model_client import ModelClient
+from courtloc.services.infer.store import ACTIVE_FILE
 
 pytestmark = pytest.mark.integration
 
@@ -25,7 +26,9 @@ def test_a_store_error_reply_does_not_name_the_store_folder(tmp_path: Path) -> N
     stage = start_stage("infer", config)
     try:
         stage.wait_line("infer running for robot", timeout=60)
-        (store / "active.json").write_text("{ damaged")  # the store's own record, broken on disk
+        # The store's own record (ACTIVE_FILE, not the legacy active.json a running store never reads again),
+        # broken on disk: reading it fails with an error that names its full path.
+        (store / ACTIVE_FILE).write_text("{ damaged")
         # The pit's client: it waits until the router knows the stage's queryable (which can come after the
         # stage says it runs: a one-shot query then reaches nobody), then asks once.
         reply = ModelClient(client.session, "robot1").request(Rollback(), timeout_s=30)
@@ -33,5 +36,6 @@ def test_a_store_error_reply_does_not_name_the_store_folder(tmp_path: Path) -> N
         client.close()
         stage.stop()
         router.stop()
-    assert not reply.ok and reply.reason
+    assert not reply.ok and "is damaged" in reply.reason, reply.reason  # the error that names a path
+    assert "<store>" in reply.reason, reply.reason
     assert str(tmp_path) not in reply.reason and str(tmp_path.resolve()) not in reply.reason, reply.reason

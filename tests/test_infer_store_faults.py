@@ -210,6 +210,13 @@ def test_abandoned_uploads_are_swept_at_start_and_open_ones_are_bounded(tmp_path
         assert not abandoned.exists() and not leftover.exists()
         ids = []
         for i in range(3):  # three pushes left open: the least recently written one goes
+            if i == 2:
+                # Upload 0 was written before upload 1, but a kernel with coarse file times (a jiffy, 4 ms at
+                # HZ=250) may stamp both alike and leave the choice to directory order: made explicit here.
+                minute_ago = time.time() - 60
+                first = store_dir / INCOMING / ids[0]
+                for path in (*first.iterdir(), first):
+                    os.utime(path, (minute_ago, minute_ago))
             data = bytes([i]) * 5000
             begun = robot.models.request(PushBegin(files=[_spec("model.onnx", data)]))
             assert begun.ok, begun

@@ -1,4 +1,4 @@
-"""The package README (localizer/report.py): crosseval table, verdicts and the package's own evaluation report."""
+"""The package README (lab/report.py): crosseval table, verdicts and the package's own evaluation report."""
 from __future__ import annotations
 
 import json

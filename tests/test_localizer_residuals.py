@@ -1,4 +1,4 @@
-"""`courtloc localizer residuals` (localizer/residuals.py): residuals at the true poses by paint kind and range."""
+"""`courtloc localizer residuals` (lab/residuals.py): residuals at the true poses by paint kind and range."""
 from __future__ import annotations
 
 import json

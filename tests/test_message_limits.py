@@ -176,10 +176,8 @@ def test_preprocess_process_counts_every_hostile_frame_by_reason_and_keeps_worki
 def test_handler_exceptions_are_counted_and_logged_rate_limited(tmp_path: Path) -> None:
     """Edges of a frame size the model cannot take make the handler raise: each one is a rejection with
     a reason, and the log gets one traceback, not one per message."""
-    from infer_models import TwinFrames, bundled_default
+    from infer_models import TwinFrames
 
-    if bundled_default() is None:
-        pytest.skip("no bundled model")
     frames = TwinFrames([(2.0, -1.5, 0.4)])
     port = free_port()
     router = start_router(port)

@@ -80,6 +80,40 @@ def test_bad_odometry_is_refused_with_a_counted_reason() -> None:
     assert fusion.counts["wheel_slip"] == 1 and fusion.counts["gyro_saturated"] == 1
 
 
+def test_a_saturated_gyro_or_slip_flag_down_weights_the_prediction() -> None:
+    """Flagged odometry is used, but trusted less: the prediction's covariance grows by `slip_inflation`."""
+    state = motion.start(np.array([1.0, 2.0, math.pi / 2]), np.diag([1e-4, 1e-4, 1e-5]), 0.1, MotionConfig())
+    covs = {}
+    for flag in ("none", "gyro_saturated", "wheel_slip"):
+        fusion = OdometryFusion(FusionConfig(enabled=True, slip_inflation=4.0))
+        for i in range(60):
+            flagged = {flag: True} if flag != "none" else {}
+            assert fusion.offer(odometry(i * 0.01, x=1.5 * i * 0.01, seq=i, **flagged), now_s=i * 0.01 + 0.005)
+        fusion.last_fix = (0.1, state.pose)
+        ahead = fusion.before_frame(state, 0.5)
+        assert ahead.mean[1] == pytest.approx(2.6, abs=1e-9)  # the same motion either way
+        covs[flag] = ahead.cov[:3, :3]
+        if flag != "none":
+            assert fusion.counts[flag] == 60
+    for flag in ("gyro_saturated", "wheel_slip"):
+        # Across the direction of travel (x here) the odometry's own noise dominates: 16 x its variance.
+        assert covs[flag][0, 0] - state.cov[0, 0] > 10 * (covs["none"][0, 0] - state.cov[0, 0])
+        assert covs[flag][2, 2] > covs["none"][2, 2]
+
+
+def test_twin_odometry_has_slip_bursts_that_over_read_the_wheels() -> None:
+    from courtloc.sim.odometry import OdometrySimConfig, OdometrySimulator
+    from courtloc.sim.trajectory import WaypointTrajectory
+
+    trajectory = WaypointTrajectory([(0.0, 0.0, 0.0), (9.0, 0.0, 0.0)], speed=1.5, yaw_rate=1.0)
+    config = OdometrySimConfig(wheel_scale=1.0, speed_noise_m_s=0.0, slip_rate_hz=2.0, slip_over_read=0.3)
+    speeds = [d.message.vx_m_s for d in OdometrySimulator(trajectory, config, seed=2).stream(3.0)]
+    slipping = [v for v in speeds if v > 1.6]
+    # Bursts of 0.15 s (15 windows at 100 Hz) reading 30 % long, unflagged (the MCU cannot tell).
+    assert len(slipping) >= 15 and all(v == pytest.approx(1.95, abs=0.01) for v in slipping)
+    assert sum(1 for v in speeds if v == pytest.approx(1.5, abs=0.01)) > len(speeds) / 2
+
+
 def test_twin_odometry_has_its_scale_error_bias_and_latency() -> None:
     from courtloc.sim.odometry import OdometrySimConfig, OdometrySimulator
     from courtloc.sim.trajectory import WaypointTrajectory

@@ -26,11 +26,11 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import cv2
-import numpy as np
 
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.messages import Edges, Frame, GroundTruth, Health, Pose, ShotSolution
+from courtloc.common.payloads import frame_pixels
 from courtloc.common.services_table import TOPICS
 from courtloc.common.stats import RateLimitedLog
 from courtloc.foxglove import scene
@@ -187,9 +187,7 @@ class FoxgloveLive:
 def _jpeg_view(frame: Frame) -> bytes:
     """foxglove.CompressedImage JSON of a frame; raw BGR frames are JPEG-encoded first (Wi-Fi to the pit)."""
     if frame.encoding != "jpeg":
-
-        image = np.frombuffer(frame.data, np.uint8).reshape(frame.height, frame.width, 3)
-        ok, encoded = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 80])
+        ok, encoded = cv2.imencode(".jpg", frame_pixels(frame), [cv2.IMWRITE_JPEG_QUALITY, 80])
         if not ok:
             raise ValueError("JPEG encoding failed")
         frame = frame.model_copy(update={"encoding": "jpeg", "data": encoded.tobytes()})

@@ -14,6 +14,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from courtloc.common.messages import Edges, GroundTruth, Pose
+from courtloc.common.payloads import hits_from_bytes
 
 COURT_FRAME = "court"
 ROBOT_FRAME = "base_link"
@@ -26,7 +27,6 @@ WHITE = {"r": 1.0, "g": 1.0, "b": 1.0, "a": 1.0}
 ORANGE = {"r": 1.0, "g": 0.45, "b": 0.0, "a": 1.0}
 ROBOT_COLOUR = {"r": 0.1, "g": 0.5, "b": 1.0, "a": 0.5}
 HIT_COLOUR = {"r": 1.0, "g": 0.1, "b": 0.1, "a": 1.0}
-CLEAR = {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.0}
 IDENTITY = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
 ORIGIN_POSE = {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": IDENTITY}
 
@@ -166,7 +166,7 @@ def court_scene(court_drawing: dict[str, Any], rings: Sequence[tuple[float, floa
 def hit_annotations(edges: Edges) -> dict[str, Any]:
     """foxglove.ImageAnnotations: the radial-scan hits as points on the camera image (same timestamp as
     the frame, so the image panel overlays them)."""
-    hits = np.frombuffer(edges.hits, dtype="<i2").reshape(-1, 4)[: edges.n_hits]
+    hits = hits_from_bytes(edges.hits)[: edges.n_hits]
     points = [{"x": float(col) + 0.5, "y": float(row) + 0.5} for row, col in hits[:, :2].tolist()]
     annotation = {"timestamp": stamp(edges.header.capture_wall_ns), "type": 1, "points": points,
                   "outline_color": HIT_COLOUR, "outline_colors": [], "fill_color": HIT_COLOUR, "thickness": 3.0}

@@ -19,7 +19,6 @@ log = logging.getLogger("courtloc.monitor")
 class Monitor:
     def __init__(self, config: DeploymentConfig, court_name: str, host: str, port: int, rate_hz: float = 15.0,
                  thumb_width: int = 320, thumb_rate_hz: float = 5.0) -> None:
-
         self.config = config
         self.rate_hz = rate_hz
         self.stop = threading.Event()

@@ -5,7 +5,7 @@ import argparse
 import logging
 
 from courtloc.cli_errors import RUN_EXIT, UsageError
-from courtloc.cliargs import nonnegative_int, positive_float
+from courtloc.cliargs import port_number, positive_float
 from courtloc.common.bus import wait_for_router
 from courtloc.common.exposure import insecure_exposure, warn_while_insecure
 from courtloc.common.signals import stop_on_signals
@@ -15,7 +15,7 @@ from courtloc.recording.busargs import add_client_arguments, client_deployment
 
 def register(sub: argparse._SubParsersAction) -> None:
     monitor = sub.add_parser("monitor", help="serve a live web page of the robot (pose, health, camera)")
-    monitor.add_argument("--port", type=nonnegative_int, default=8080, help="HTTP port (0: any free port)")
+    monitor.add_argument("--port", type=port_number, default=8080, help="HTTP port (0: any free port)")
     monitor.add_argument("--host", default="127.0.0.1", help="address to serve on (0.0.0.0: the whole pit LAN)")
     monitor.add_argument("--court", default=None, help="court drawing (default: the sim camera's court)")
     monitor.add_argument("--rate", type=positive_float, default=15.0, help="page updates per second (1..60)")

@@ -3,10 +3,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
-from courtloc.common.config_loader import ConfigError
+from courtloc.cli_errors import UsageError
+from courtloc.cliargs import nonnegative_int, positive_float
+from courtloc.common.bus import wait_for_router
 from courtloc.common.signals import stop_on_signals
 from courtloc.recording.busargs import add_client_arguments, client_deployment
 from courtloc.recording.foxview import FoxgloveViews
@@ -35,10 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     ros.set_defaults(func=lambda args: (ros.print_help(), 2)[1])
     bridge = ros_sub.add_parser("bridge", help="publish PoseWithCovarianceStamped + TF the way rmw_zenoh does, "
                                                "and feed nav_msgs/Odometry into shooter_bridge/odometry")
-    bridge.add_argument("--domain", type=int, default=0, help="ROS_DOMAIN_ID (default 0)")
+    bridge.add_argument("--domain", type=nonnegative_int, default=0, help="ROS_DOMAIN_ID (default 0)")
     bridge.add_argument("--namespace", default="/courtloc", help="prefix of the published topics")
     bridge.add_argument("--odometry-topic", default="/odom", help="ROS topic read as odometry ('' for none)")
-    bridge.add_argument("--duration", type=float, default=None, help="stop after S seconds (default: Ctrl-C)")
+    bridge.add_argument("--duration", type=positive_float, default=None, help="stop after S seconds (default: Ctrl-C)")
     bridge.add_argument("--distro", choices=("humble", "jazzy"), default="humble",
                         help="rmw_zenoh's key format: humble (no type hash) or jazzy (RIHS01 hashes)")
     bridge.add_argument("--court", default=None, help="court whose camera places base_link -> camera "
@@ -52,18 +53,13 @@ def run_export(args: argparse.Namespace) -> int:
     try:
         import rosbags  # noqa: F401 - optional extra
     except ImportError:
-        print(f"export rosbag2: {ROS_EXTRA_HINT}", file=sys.stderr)
-        return 2
+        raise UsageError(ROS_EXTRA_HINT) from None
 
     if args.out.exists():
-        print(f"export rosbag2: {args.out} exists; give a new folder", file=sys.stderr)
-        return 2
-    try:
-        camera = FoxgloveViews.load(args.court, args.camera).camera
-        stats = export_rosbag2(args.input, args.out, camera, args.namespace, args.robot)
-    except (FileNotFoundError, ValueError) as exc:
-        print(f"export rosbag2: {exc}", file=sys.stderr)
-        return 2
+        raise UsageError(f"{args.out} exists; give a new folder")
+    # a missing recording, a bad court or camera raises, named (courtloc.cli prints it as one line)
+    camera = FoxgloveViews.load(args.court, args.camera).camera
+    stats = export_rosbag2(args.input, args.out, camera, args.namespace, args.robot)
     print(json.dumps({"bag": str(args.out), "written": stats.written, "skipped": stats.skipped}))
     return 0
 
@@ -72,18 +68,15 @@ def run_bridge(args: argparse.Namespace) -> int:
     try:
         import rosbags  # noqa: F401 - optional extra
     except ImportError:
-        print(f"ros bridge: {ROS_EXTRA_HINT}", file=sys.stderr)
-        return 2
+        raise UsageError(ROS_EXTRA_HINT) from None
 
-    try:
-        config = client_deployment(args)
-        options = BridgeOptions(domain_id=args.domain, namespace=args.namespace, odometry_topic=args.odometry_topic,
-                                distro=args.distro)
-        camera = FoxgloveViews.load(args.court or config.camera.sim.get("court", config.court),
-                                    args.camera or config.camera.sim.get("camera")).camera
-    except (ConfigError, ValueError) as exc:
-        print(" ".join(str(exc).split()), file=sys.stderr)
-        return 2
+    # a bad file, field, court or camera raises, named (courtloc.cli prints it as one line)
+    config = client_deployment(args)
+    options = BridgeOptions(domain_id=args.domain, namespace=args.namespace, odometry_topic=args.odometry_topic,
+                            distro=args.distro)
+    camera = FoxgloveViews.load(args.court or config.camera.sim.get("court", config.court),
+                                args.camera or config.camera.sim.get("camera")).camera
+    wait_for_router(config.zenoh, args.timeout)  # names the endpoint; gives up after --timeout S
     stop = stop_on_signals()
     bridge = RosZenohBridge(config.robot_id, config.zenoh, options, camera)
     stats = bridge.run(stop, args.duration,

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from courtloc.common.messages import Frame, Pose, ShotSolution
+from courtloc.common.payloads import frame_pixels
 from courtloc.foxglove import scene
 from courtloc.ros import types
 
@@ -82,9 +83,7 @@ def compressed_image(frame: Frame, frame_id: str = scene.CAMERA_FRAME) -> Any:
     'compressed' format; use --raw-images for sensor_msgs/Image-sized bags elsewhere)."""
     data = frame.data
     if frame.encoding != "jpeg":
-
-        image = np.frombuffer(frame.data, np.uint8).reshape(frame.height, frame.width, 3)
-        ok, encoded = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])
+        ok, encoded = cv2.imencode(".jpg", frame_pixels(frame), [cv2.IMWRITE_JPEG_QUALITY, 95])
         if not ok:
             raise ValueError("JPEG encoding failed")
         data = encoded.tobytes()

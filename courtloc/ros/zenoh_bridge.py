@@ -81,7 +81,6 @@ class _Latest:
 class RosZenohBridge:
     def __init__(self, robot_id: str, zenoh_config: ZenohConfig, options: BridgeOptions,
                  camera: scene.CameraPlacement | None = None) -> None:
-
         self.robot_id = robot_id
         self.zenoh_config = zenoh_config
         self.options = options

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -30,6 +30,25 @@ class FolderSourceConfig(_Section):
     loop: bool = True
 
 
+# The simulated camera is the digital twin's (courtloc.sim), which nothing on the robot side imports. Its
+# [camera.sim] table stays raw here: the twin's camera stage (sim/camera_stage.py) validates all of it, and
+# `courtloc up` and `courtloc run camera` check it before anything starts. What the deployment itself reads of
+# it is the route's start (SimRoute), the infer stage's start in a simulated deployment.
+DEFAULT_SIM_WAYPOINTS: list[list[float]] = [[3.0, -2.0], [3.0, 2.0], [-3.0, 2.0], [-3.0, -2.0]]
+"""A loop around the seed court that sees the key, the three-point line and the centre line. Starts in the +x
+half, where the bundled localizer assumes a robot starts (its `half`), then tours both. The twin's default."""
+
+
+class SimRoute(BaseModel):
+    """Where the simulated robot starts, as far as the [camera.sim] table says (its other fields are the twin's
+    to check). The defaults are the twin's own (sim/source.py: SimSourceConfig)."""
+
+    model_config = ConfigDict(extra="ignore")
+    trajectory: str = "waypoints"
+    waypoints: list[list[float]] = Field(default_factory=lambda: [list(w) for w in DEFAULT_SIM_WAYPOINTS])
+    start: Optional[tuple[float, float, float]] = Field(None, description="random walk: start pose [x, y, yaw]")
+
+
 class CameraConfig(_Section):
     source: Literal["device", "file", "folder", "sim"] = "sim"
     fps: float = Field(default=30.0, gt=0, le=240)
@@ -44,21 +63,15 @@ class CameraConfig(_Section):
     device: DeviceSourceConfig = Field(default_factory=DeviceSourceConfig)
     file: FileSourceConfig | None = None
     folder: FolderSourceConfig | None = None
-    # The simulated camera is the digital twin (courtloc.sim), which a robot with a real camera never loads:
-    # its table stays raw here and the twin validates it when source = "sim" (see sim/source.py for fields).
-    sim: dict[str, Any] = Field(default_factory=dict)
+    sim: dict[str, Any] = Field(default_factory=dict, description="the twin's simulated camera, raw (see above)")
 
     @model_validator(mode="after")
     def _source_section_present(self) -> "CameraConfig":
         if self.source in ("file", "folder") and getattr(self, self.source) is None:
             raise ValueError(f"source = {self.source!r} needs a [camera.{self.source}] section")
         if self.source == "sim":
-            sim_source_config(self)  # a bad [camera.sim] table fails here, at start, naming its field
+            self.sim_route()  # a bad route fails here, at start, naming its field
         return self
 
-
-def sim_source_config(config: CameraConfig) -> "SimSourceConfig":  # noqa: F821 - the twin's type
-    """The [camera.sim] table as the twin's own config, paced at the camera's rate."""
-    from courtloc.sim.source import SimSourceConfig  # the twin: loaded only when the camera is simulated
-
-    return SimSourceConfig.model_validate({**config.sim, "fps": config.fps})
+    def sim_route(self) -> SimRoute:
+        return SimRoute.model_validate(self.sim)

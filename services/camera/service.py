@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+from typing import ClassVar, Mapping
 
 import cv2
 import numpy as np
@@ -11,7 +12,14 @@ from courtloc.common.messages import Frame, GroundTruth, Header
 from courtloc.common.runtime import Service
 from courtloc.common.shm_frames import PixelStaging, ShmFramePublisher
 from courtloc.services.camera.config import CameraConfig
-from courtloc.services.camera.sources import Capture, FrameSource, SourceError, make_source
+from courtloc.services.camera.sources import (
+    ROBOT_SOURCES,
+    Capture,
+    FrameSource,
+    SourceError,
+    SourceFactory,
+    make_source,
+)
 
 
 def encode_frame(frame: np.ndarray, header: Header, encoding: str, jpeg_quality: int,
@@ -41,11 +49,13 @@ def capture_header(robot_id: str, seq: int, stage: str, taken_mono_ns: int | Non
 
 class CameraService(Service):
     name = "camera"
+    # The source kinds this stage can open, by [camera] source; the twin's camera stage adds "sim".
+    sources: ClassVar[Mapping[str, SourceFactory]] = ROBOT_SOURCES
 
     def __init__(self, robot_id: str, zenoh_config: ZenohConfig, config: CameraConfig) -> None:
         super().__init__(robot_id, zenoh_config)
         self.config = config
-        self.source: FrameSource = make_source(config)
+        self.source: FrameSource = make_source(config, self.sources)  # a bad source table stops the start here
         self._open = False
         self._backoff = config.reopen_backoff_s
         self._seq = 0

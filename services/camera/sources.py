@@ -1,7 +1,10 @@
-"""Frame sources of the camera service: a device, a video file, a folder of images, the sim.
+"""Frame sources of the camera service: a device, a video file, a folder of images.
 
 Every source raises `SourceError` when it cannot deliver; the service closes it and reopens with
-back-off, so an unplugged camera never crashes the process.
+back-off, so an unplugged camera never crashes the process. A source is made from the camera config by
+the factory of its kind (`ROBOT_SOURCES`); the simulated camera ("sim") is the digital twin's, which the
+robot side never imports: the twin's camera stage (courtloc.sim.camera_stage) runs the same service with
+its own source added to these kinds.
 """
 from __future__ import annotations
 
@@ -9,18 +12,12 @@ import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Callable, Mapping, Protocol
 
 import cv2
 import numpy as np
 
-from courtloc.services.camera.config import (
-    CameraConfig,
-    DeviceSourceConfig,
-    FileSourceConfig,
-    FolderSourceConfig,
-    sim_source_config,
-)
+from courtloc.services.camera.config import CameraConfig, DeviceSourceConfig, FileSourceConfig, FolderSourceConfig
 
 
 class SourceError(RuntimeError):
@@ -35,6 +32,9 @@ class Capture:
 
 
 class FrameSource(Protocol):
+    """open() -> read() ... -> close(); read() gives the frame, the true pose when the source knows it and,
+    when it knows better than now, the instant the frame shows (Capture)."""
+
     def open(self) -> None: ...
     def read(self, out: np.ndarray | None = None) -> Capture:
         """The next frame; a source that decodes may write it into `out` (when the shape fits) and return it."""
@@ -153,32 +153,33 @@ class FolderSource:
         self._files = []
 
 
-class SimFrameSource:
-    """Adapter over the digital twin's source (its own trajectory and renderer)."""
-
-    def __init__(self, config: CameraConfig) -> None:
-        from courtloc.sim.source import SimSource  # the twin: loaded only when the camera is simulated
-
-        self._sim = SimSource(sim_source_config(config))
-
-    def open(self) -> None:
-        self._sim.open()
-
-    def read(self, out: np.ndarray | None = None) -> Capture:
-        frame, pose = self._sim.read()
-        return Capture(frame, pose, self._sim.taken_mono_ns)
-
-    def close(self) -> None:
-        self._sim.close()
+SourceFactory = Callable[[CameraConfig], FrameSource]
 
 
-def make_source(config: CameraConfig) -> FrameSource:
-    if config.source == "device":
-        return DeviceSource(config.device)
-    if config.source == "file":
-        assert config.file is not None
-        return FileSource(config.file)
-    if config.source == "folder":
-        assert config.folder is not None
-        return FolderSource(config.folder)
-    return SimFrameSource(config)
+def _file_source(config: CameraConfig) -> FrameSource:
+    assert config.file is not None  # CameraConfig requires the section of its source
+    return FileSource(config.file)
+
+
+def _folder_source(config: CameraConfig) -> FrameSource:
+    assert config.folder is not None
+    return FolderSource(config.folder)
+
+
+ROBOT_SOURCES: Mapping[str, SourceFactory] = {
+    "device": lambda config: DeviceSource(config.device),
+    "file": _file_source,
+    "folder": _folder_source,
+}
+
+
+def make_source(config: CameraConfig, kinds: Mapping[str, SourceFactory] = ROBOT_SOURCES) -> FrameSource:
+    """The source of `config.source` from its factory in `kinds`; a kind not there is a ValueError that says
+    where it lives (the process stops at start with it)."""
+    factory = kinds.get(config.source)
+    if factory is None:
+        where = ("the digital twin's: its camera stage is `python -m courtloc.sim.camera_stage`, which "
+                 "`courtloc up` and `courtloc run camera` start" if config.source == "sim" else "unknown")
+        raise ValueError(f"camera source {config.source!r} is not one of this camera stage's "
+                         f"({', '.join(kinds)}): it is {where}")
+    return factory(config)
