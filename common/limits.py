@@ -25,6 +25,9 @@ MAX_IMAGE_BYTES = MAX_IMAGE_PIXELS * 3  # bgr8; a JPEG of such an image is small
 HIT_BYTES = 8  # int16 x (row, col, ray, d)
 MAX_HITS = 16384  # the default scan gives hundreds to a few thousand per frame
 MAX_HITS_BYTES = MAX_HITS * HIT_BYTES
+MARK_BYTES = 6  # int16 x (row, col, mark index)
+MAX_MARKS = 1024  # colour marks of one frame (a coarse grid of the frame; the preprocess default sends <= 256)
+MAX_MARKS_BYTES = MAX_MARKS * MARK_BYTES
 
 MAX_CHUNK_BYTES = 8 * 2**20  # one model-upload chunk (the client sends 4 MiB by default)
 MAX_UPLOAD_FILES = 64
@@ -32,6 +35,11 @@ MAX_UPLOAD_FILES = 64
 # Everything in a message besides its one bulk field (header with MAX_STAMPS stamps, names, numbers,
 # msgpack framing) fits in this, with room to spare.
 ENVELOPE_BYTES = 64 * 1024
+
+# What zenoh adds to our payload in one network message (key expression, encoding, timestamp, source info:
+# tens of bytes), with room to spare: the margin between the table's largest payload and the largest
+# message a session accepts off a link (services_table.MAX_BUS_MESSAGE_BYTES).
+ZENOH_FRAMING_MARGIN_BYTES = 64 * 1024
 
 Name = Annotated[str, StringConstraints(max_length=MAX_NAME_CHARS)]
 HostName = Annotated[str, StringConstraints(max_length=MAX_HOST_CHARS)]

@@ -20,6 +20,8 @@ from courtloc.common.limits import (
     MAX_IMAGE_BYTES,
     MAX_IMAGE_PIXELS,
     MAX_IMAGE_SIDE,
+    MAX_MARKS,
+    MAX_MARKS_BYTES,
     MAX_STAMPS,
     HostName,
     Name,
@@ -133,12 +135,16 @@ class GroundTruth(Strict):
 
 
 class Edges(_Image):
-    """Radial-scan hits: int16 rows of (row, col, ray, d) in full-frame pixels, packed little-endian."""
+    """Radial-scan hits: int16 rows of (row, col, ray, d) in full-frame pixels, packed little-endian; and
+    the court's colour marks seen in the frame: int16 rows of (row, col, mark index), the same packing
+    (none unless the deployment's court has marks: `Court.marks`)."""
 
     header: Header
     crop_top: int = Field(ge=0, le=MAX_IMAGE_SIDE)
     n_hits: int = Field(ge=0, le=MAX_HITS)
     hits: bytes = Field(max_length=MAX_HITS_BYTES)
+    n_marks: int = Field(0, ge=0, le=MAX_MARKS)
+    marks: bytes = Field(b"", max_length=MAX_MARKS_BYTES)
 
 
 class Pose(Strict):

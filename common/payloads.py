@@ -1,4 +1,4 @@
-"""Codecs of the wire payloads the message contract carries as bytes: camera pixels and scan hits.
+"""Codecs of the wire payloads the message contract carries as bytes: camera pixels, scan hits, colour marks.
 
 Every stage and tool that reads a `Frame` or an `Edges` payload goes through here, so the byte layout
 is written down once. Bad input raises `FrameError`, whose `reason` is a short stable word a service
@@ -16,6 +16,7 @@ from courtloc.common.messages import Edges, Frame
 HIT_DTYPE = np.int16
 _HIT_WIRE_DTYPE = "<i2"
 _HIT_FIELDS = 4
+MARK_FIELDS = 3  # a colour mark is (row, col, mark index into the court's marks)
 
 
 class FrameError(ValueError):
@@ -81,12 +82,16 @@ def hits_to_bytes(hits: np.ndarray) -> bytes:
     return np.ascontiguousarray(hits, dtype=_HIT_WIRE_DTYPE).tobytes()
 
 
+def _rows_from_bytes(data: bytes, fields: int, what: str) -> np.ndarray:
+    row_bytes = fields * np.dtype(_HIT_WIRE_DTYPE).itemsize
+    if len(data) % row_bytes:
+        raise ValueError(f"{len(data)} bytes is not a whole number of {row_bytes}-byte {what}")
+    return np.frombuffer(data, _HIT_WIRE_DTYPE).reshape(-1, fields).astype(HIT_DTYPE)
+
+
 def hits_from_bytes(data: bytes) -> np.ndarray:
     """Inverse of `hits_to_bytes`; ValueError if the length is not a whole number of hits."""
-    row_bytes = _HIT_FIELDS * np.dtype(_HIT_WIRE_DTYPE).itemsize
-    if len(data) % row_bytes:
-        raise ValueError(f"{len(data)} bytes is not a whole number of {row_bytes}-byte hits")
-    return np.frombuffer(data, _HIT_WIRE_DTYPE).reshape(-1, _HIT_FIELDS).astype(HIT_DTYPE)
+    return _rows_from_bytes(data, _HIT_FIELDS, "hits")
 
 
 def edges_hits(edges: Edges) -> np.ndarray:
@@ -95,3 +100,16 @@ def edges_hits(edges: Edges) -> np.ndarray:
     if len(hits) != edges.n_hits:
         raise ValueError(f"{len(hits)} hits in the payload, the header says {edges.n_hits}")
     return hits
+
+
+def marks_to_bytes(marks: np.ndarray) -> bytes:
+    """Colour marks as the Edges message carries them: int16 little-endian (M x 3: row, col, mark index)."""
+    return np.ascontiguousarray(marks, dtype=_HIT_WIRE_DTYPE).reshape(-1, MARK_FIELDS).tobytes()
+
+
+def edges_marks(edges: Edges) -> np.ndarray:
+    """The colour marks of an Edges message; ValueError when the payload disagrees with its `n_marks`."""
+    marks = _rows_from_bytes(edges.marks, MARK_FIELDS, "marks")
+    if len(marks) != edges.n_marks:
+        raise ValueError(f"{len(marks)} marks in the payload, the header says {edges.n_marks}")
+    return marks

@@ -12,7 +12,8 @@ from typing import Literal
 from pydantic import BaseModel
 
 from courtloc.common.control import ModelReply, ModelRequest, PoseReply, PoseRequest
-from courtloc.common.limits import MAX_CHUNK_BYTES, MAX_HITS_BYTES, MAX_IMAGE_BYTES, max_payload_bytes
+from courtloc.common.limits import (MAX_CHUNK_BYTES, MAX_HITS_BYTES, MAX_IMAGE_BYTES, MAX_MARKS_BYTES,
+                                    ZENOH_FRAMING_MARGIN_BYTES, max_payload_bytes)
 from courtloc.common.messages import Edges, Frame, GroundTruth, Health, Odometry, Pose, ShotSolution
 
 ROOT = "courtloc"
@@ -55,7 +56,7 @@ class Topic(_Keyed):
 
 
 # The one bulk field of a message type, bounded by the contract (common/limits.py); the rest is the envelope.
-_BULK_BYTES: dict[type[BaseModel], int] = {Frame: MAX_IMAGE_BYTES, Edges: MAX_HITS_BYTES,
+_BULK_BYTES: dict[type[BaseModel], int] = {Frame: MAX_IMAGE_BYTES, Edges: MAX_HITS_BYTES + MAX_MARKS_BYTES,
                                            ModelRequest: MAX_CHUNK_BYTES}
 
 
@@ -158,6 +159,14 @@ CONTROLS: dict[str, Control] = {
 RELAY_HOPS = 4
 RELAY_TOPICS: tuple[Topic, ...] = tuple(
     _topic("bench", f"relay{i}", Frame, 30.0, "data_high", 100.0, "benchmark relay hop") for i in range(RELAY_HOPS))
+
+# The largest message any session of ours (stages, tools, the router) accepts off a link: the biggest payload
+# the table lets through, plus zenoh's framing. zenoh reassembles a fragmented message whole before anyone
+# sees it, so without this bound a hostile 400 MB payload was held in memory before our own size check
+# refused it; above it zenoh drops the message on receipt and keeps the link (bus.build_zenoh_config).
+MAX_BUS_MESSAGE_BYTES = max(
+    [t.max_bytes for t in (*TOPICS.values(), *RELAY_TOPICS)] + [c.max_bytes for c in CONTROLS.values()]
+) + ZENOH_FRAMING_MARGIN_BYTES
 
 
 def liveliness_key(robot_id: str, service: str) -> str:

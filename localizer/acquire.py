@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Callable, Literal
 
 import numpy as np
 
@@ -72,6 +72,18 @@ class Prior:
 
 
 @dataclass(frozen=True)
+class Sighting:
+    """A pose of a hypothesis, when it held (None: no clock) and its position covariance (None: a point)."""
+
+    pose: np.ndarray
+    t: float | None
+    cov: np.ndarray | None = None
+
+    def mirrored(self, mirror: Callable[[np.ndarray], np.ndarray]) -> "Sighting":
+        return Sighting(mirror(self.pose), self.t, None if self.cov is None else self.cov.copy())
+
+
+@dataclass(frozen=True)
 class Hypothesis:
     """A tracked candidate pose and where and when it was first seen (what a pose prior is compared with)."""
 
@@ -80,10 +92,28 @@ class Hypothesis:
     origin_t: float | None
     origin_cov: np.ndarray | None = None  # (2, 2) position covariance where first seen (None: a point)
     pinned: bool = True  # False: its fits do not pin the position (a degenerate view): never decided
+    # Where and when a hypothesis first seen unpinned was first pinned by a valid fit (None: its origin was
+    # pinned, or it never was). An unpinned sighting says only "somewhere along these lines", so its mirror
+    # twin 12 m away along them is explained as well as the truth; the pinned sighting must be explained too.
+    pinned_sighting: Sighting | None = None
+    # Colour marks seen so far, (on their own colour, on another mark's) at this hypothesis's poses
+    # (localizer/marks.py): the court's asymmetric colours, the one thing a view shows that its twin lacks.
+    marks: tuple[int, int] = (0, 0)
 
     @property
     def pose(self) -> np.ndarray:
         return self.state.pose
+
+    def sightings(self) -> list[Sighting]:
+        """The evidence a pose prior is compared with: the first sighting, and the first pinned one."""
+        first = Sighting(self.origin, self.origin_t, self.origin_cov)
+        return [first] if self.pinned_sighting is None else [first, self.pinned_sighting]
+
+    def earliest_pinned(self) -> Sighting | None:
+        """Its first pinned sighting: the origin when it was pinned from the start."""
+        if self.pinned_sighting is not None:
+            return self.pinned_sighting
+        return Sighting(self.origin, self.origin_t, self.origin_cov) if self.pinned else None
 
 
 @dataclass(frozen=True)
@@ -127,6 +157,23 @@ def prior_distance2(prior: Prior, pose: np.ndarray, t: float | None, cfg: Acquir
     return d2
 
 
+def hypothesis_distance2(prior: Prior, hypothesis: Hypothesis, cfg: AcquireConfig) -> float:
+    """d^2 of a hypothesis from a pose prior: the largest over its sightings (the truth is explained by
+    each of them, so a hypothesis one of them does not explain is not explained)."""
+    return max(prior_distance2(prior, s.pose, s.t, cfg, s.cov) for s in hypothesis.sightings())
+
+
+def colour_verdict(hypothesis: Hypothesis, cfg: AcquireConfig) -> Literal["for", "against", ""]:
+    """What the colour marks say of a hypothesis: 'for' / 'against' once at least `marks_min` marks agree
+    (disagree) and outnumber the others `marks_ratio` to one; '' until then (or no marks on the court)."""
+    agree, disagree = hypothesis.marks
+    if agree >= cfg.marks_min and agree >= cfg.marks_ratio * disagree:
+        return "for"
+    if disagree >= cfg.marks_min and disagree >= cfg.marks_ratio * agree:
+        return "against"
+    return ""
+
+
 def in_half(pose: np.ndarray, half: Half, centre_margin_m: float) -> bool:
     """In the half and clear of the centre line (near x = 0 position cannot tell the halves apart)."""
     return bool((1.0 if half == "+x" else -1.0) * pose[0] >= centre_margin_m)
@@ -137,37 +184,49 @@ class Decision:
     index: int | None  # the decided hypothesis, None: nothing decides
     explained: bool  # the prior explains at least one hypothesis (False: drop a lost track's prior)
     tight: bool = False  # decided by a pose prior known to within `tight_prior_m` (needs less confirmation)
-    kidnap: bool = False  # decided by a kidnap prior (needs more)
+    kidnap: bool = False  # decided by a kidnap prior or by colour marks alone (needs more)
 
 
 def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None, t: float | None,
-           cfg: AcquireConfig, centre_margin_m: float) -> Decision:
+           cfg: AcquireConfig, centre_margin_m: float, court_marks: bool = False) -> Decision:
     """Which hypothesis the evidence picks (see the module's rule 2). A pose prior is compared with each
     hypothesis where and when it was first seen (its origin): a hypothesis tracked since carries that
     evidence, so waiting does not wash it out; a half is judged at the current pose (the robot may leave
     the centre). Sound because every hypothesis's mirror twin is kept beside it with the mirrored origin
     (GeometricLocalizer._with_twins): without that, a lone survivor near the prior would be decided while
     its twin, equally near, was missing. `half`: the package's fixed half ('half' symmetry mode), applied
-    on top of the prior. `t` is the decision's time (the tight flag's age)."""
+    on top of the prior. `t` is the decision's time (the tight flag's age). `court_marks`: the court has
+    colour marks; a hypothesis they contradict is never the robot, and without a prior a lone hypothesis
+    is decided only when they speak for it (on a point-symmetric court its twin is then contradicted) and
+    it has moved `marks_motion_m` or turned `marks_turn_deg` since it was first seen, confirmed like a
+    kidnap prior's decision."""
     poses = [h.pose for h in hypotheses]
-    keep = list(range(len(poses)))
+    keep = [i for i in range(len(poses)) if colour_verdict(hypotheses[i], cfg) != "against"]
     if half is not None:
         keep = [i for i in keep if in_half(poses[i], half, centre_margin_m)]
     explained = True
     if prior is not None and prior.half is not None:
         keep = [i for i in keep if in_half(poses[i], prior.half, centre_margin_m)]
     if prior is not None and prior.pose is not None and keep:
-        d2 = {i: prior_distance2(prior, hypotheses[i].origin, hypotheses[i].origin_t, cfg, hypotheses[i].origin_cov)
-              for i in keep}
+        d2 = {i: hypothesis_distance2(prior, hypotheses[i], cfg) for i in keep}
         inside = [i for i in keep if d2[i] <= cfg.prior_gate_chi2]
         if not inside:
             return Decision(None, explained=False)
         best = min(inside, key=d2.__getitem__)
-        origin_t = hypotheses[best].origin_t
+        # The spread the decision rests on: the prior's, grown to the latest sighting compared with it.
+        origin_t = max((s.t for s in hypotheses[best].sightings() if s.t is not None), default=None)
         age = 0.0 if origin_t is None or prior.t is None else abs(origin_t - prior.t)
         spread = prior.std_m + cfg.motion_sigma_mps * age
         if hypotheses[best].pinned and d2[best] <= cfg.decide_chi2 and spread <= cfg.max_decide_std_m and all(
                 0.5 * (d2[i] - d2[best]) >= cfg.decide_log_ratio for i in keep if i != best):
             return Decision(best, explained, tight=spread <= cfg.tight_prior_m, kidnap=prior.source == "kidnap")
         return Decision(None, explained)
-    return Decision(keep[0] if len(keep) == 1 and hypotheses[keep[0]].pinned else None, explained)
+    lone = len(keep) == 1 and hypotheses[keep[0]].pinned
+    if lone and court_marks:
+        # The marks tell twins apart, not the near-ties of one side (both see the same strip); a view the
+        # search misread stays misread while the robot stands still, so it must have moved since.
+        h = hypotheses[keep[0]]
+        moved = math.hypot(*(h.pose[:2] - h.origin[:2])) >= cfg.marks_motion_m or \
+            _yaw_diff(h.pose[2], h.origin[2]) >= math.radians(cfg.marks_turn_deg)
+        return Decision(keep[0] if colour_verdict(h, cfg) == "for" and moved else None, explained, kidnap=True)
+    return Decision(keep[0] if lone else None, explained)

@@ -136,6 +136,14 @@ class AcquireConfig(BaseModel):
                                     "basins metres away, and the true pose may be one the search has not found yet")
     decide_log_ratio: float = Field(4.6, gt=0, description="the prior decides when the best hypothesis is this much "
                                     "more likely (log) than every other (4.6: 100 to 1)")
+    marks_min: int = Field(12, ge=1, description="colour marks (court.marks) a hypothesis must have seen agree "
+                           "(disagree) before they speak for (against) it")
+    marks_ratio: float = Field(4.0, ge=1, description="... and outnumber the others by this factor (a red robot or "
+                               "ball seen beside the blue strip must not overrule the strip)")
+    marks_motion_m: float = Field(0.5, gt=0, description="marks decide without a prior only for a hypothesis tracked "
+                                  "this far (or turned marks_turn_deg) since first seen: a near-tie of the same side "
+                                  "sees the same strip, and a standing robot's misread view stays misread")
+    marks_turn_deg: float = Field(20.0, gt=0)
 
 
 class LocalizerConfig(BaseModel):

@@ -13,7 +13,7 @@ number of robots.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Union
 
 import numpy as np
@@ -22,6 +22,7 @@ from courtloc.localizer import acquire, motion
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.fit import FitResult, fit_pose, fit_poses, quality_score
+from courtloc.localizer.marks import MarkMap, MarkPoints
 from courtloc.localizer.projection import HitGeometry, ProjectedHits
 from courtloc.localizer.search import CoarseSearch
 from courtloc.localizer.symmetry import by_half, by_previous, mirror
@@ -93,6 +94,7 @@ class GeometricLocalizer:
         # On a point-symmetric court every hypothesis has a twin that fits exactly as well: acquisition keeps
         # both alive, whatever its tracking does to either.
         self.symmetric = self.field.point_symmetric()
+        self.mark_map = MarkMap(court) if court.marks else None
 
     def localize_points(self, floor_points: np.ndarray, previous: np.ndarray | None = None) -> LocalizeResult:
         """Pose from (N, 2) robot-frame floor points (NaN rows ignored). Points carry no pixels, hence no scan
@@ -116,21 +118,23 @@ class GeometricLocalizer:
             best = fit_pose(self.field, hits, np.zeros(3), cfg.fit, cfg.quality)
         return self._finish(best, "global", None if hint is None else np.asarray(hint, np.float64))
 
-    def track(self, hits: ProjectedHits, state: TrackState, t: float | None = None) -> TrackStep:
+    def track(self, hits: ProjectedHits, state: TrackState, t: float | None = None,
+              marks: MarkPoints | None = None) -> TrackStep:
         """One frame of a track at time t (seconds; None: frames `motion.frame_period_s` apart).
 
         With a track (`MotionState`): the fit starts from the state's prediction and is fused with it by
         covariance; a frame without a usable fit answers the prediction (invalid). The reset rules are
         motion.py's. Without one (None, or `acquire.Acquiring` carrying a prior): acquisition, whose
         frames are invalid until one hypothesis wins on evidence (acquire.py). A lost track becomes an
-        acquisition whose prior is its last pose.
+        acquisition whose prior is its last pose. `marks`: the frame's colour marks on the floor (marks.py),
+        evidence for acquisition on a court that has them.
         """
         if state is None:
             state = acquire.Acquiring()
         if isinstance(state, motion.MotionState) and motion.is_lost(state, t, self.config.motion):
             state = acquire.Acquiring(prior=self.lost_prior(state))
         if isinstance(state, acquire.Acquiring):
-            return self._acquire(hits, state, t)
+            return self._acquire(hits, state, t, marks)
         return self._step(hits, state, t)
 
     def lost_prior(self, state: motion.MotionState) -> acquire.Prior:
@@ -165,16 +169,21 @@ class GeometricLocalizer:
         return TrackStep(self._answer(res, pred.pose, invalid=True), motion.coast(pred, mcfg))
 
     # ---- acquisition (acquire.py has the rule) ------------------------------------------------------
-    def _acquire(self, hits: ProjectedHits, state: acquire.Acquiring, t: float | None) -> TrackStep:
+    def _acquire(self, hits: ProjectedHits, state: acquire.Acquiring, t: float | None,
+                 marks: MarkPoints | None = None) -> TrackStep:
         cfg, acfg = self.config, self.config.acquire
         prior = None if state.prior is None else state.prior.at(t)
         live: list[tuple[LocalizeResult, acquire.Hypothesis]] = []
         for h in state.hypotheses:
             step = self._step(hits, h.state, t)
             if step.state is not None and step.state.lost < acfg.drop_lost_frames:
-                # Pinned once a fit of it is valid: from then on the view has pinned where it is.
-                live.append((step.result, acquire.Hypothesis(step.state, h.origin, h.origin_t, h.origin_cov,
-                                                             h.pinned or step.result.valid)))
+                # Pinned once a fit of it is valid: from then on the view has pinned where it is, and where
+                # that happened is evidence too (acquire.Hypothesis.pinned_sighting).
+                sighting = h.pinned_sighting
+                if not h.pinned and step.result.valid:
+                    sighting = acquire.Sighting(step.state.pose.copy(), t, step.state.cov[:2, :2].copy())
+                live.append((step.result, replace(h, state=step.state, pinned=h.pinned or step.result.valid,
+                                                  pinned_sighting=sighting)))
         since = state.since_search + 1
         searched: FitResult | None = None
         blocked = False
@@ -190,6 +199,9 @@ class GeometricLocalizer:
             limit = min(fitted) * acfg.tie_ratio + acfg.tie_abs
             live = [(res, h) for res, h in live if h.state.lost > 0 or res.fit.cost <= limit]
         live = live[:acfg.max_hypotheses]
+        if self.mark_map is not None and marks is not None and len(marks):
+            live = [(res, replace(h, marks=tuple(a + b for a, b in zip(h.marks, self.mark_map.evidence(h.pose, marks)))))
+                    for res, h in live]
         hypotheses = tuple(h for _, h in live)
         if not live:
             fit = searched or fit_pose(self.field, hits, np.zeros(3), cfg.fit, cfg.quality)
@@ -198,20 +210,21 @@ class GeometricLocalizer:
             res = self._answer(LocalizeResult(pose=fit.pose, fit=fit, mode="global"), pose, invalid=True)
             return TrackStep(self._status(res, "searching"), acquire.Acquiring(prior, (), 0, since))
         half = cfg.half if cfg.symmetry == "half" else None
+        court_marks = self.mark_map is not None
         # While a decision is being confirmed the prior is judged at the time it was made: its spread growing
         # frame by frame must not undo a decision the next frames only have to confirm.
         t_eval = state.decided_t if state.agreed > 0 and state.decided_t is not None else t
-        decision = acquire.decide(list(hypotheses), prior, half, t_eval, acfg, cfg.centre_margin_m)
+        decision = acquire.decide(list(hypotheses), prior, half, t_eval, acfg, cfg.centre_margin_m, court_marks)
         unexplained = 0 if decision.explained else state.unexplained + 1
         if unexplained >= acfg.kidnap_frames and prior is not None and prior.source in ("track", "kidnap"):
             unexplained = 0
             # The view contradicts the lost track's last pose: the robot was moved (acquire.py, rule 2).
             prior = (acquire.Prior("kidnap", pose=prior.pose, std_m=max(prior.std_m, acfg.kidnap_sigma_m), t=prior.t)
                      if prior.source == "track" and acfg.kidnap_sigma_m > 0 else None)
-            decision = acquire.decide(list(hypotheses), prior, half, t_eval, acfg, cfg.centre_margin_m)
+            decision = acquire.decide(list(hypotheses), prior, half, t_eval, acfg, cfg.centre_margin_m, court_marks)
             if not decision.explained:
                 prior = None
-                decision = acquire.decide(list(hypotheses), None, half, t_eval, acfg, cfg.centre_margin_m)
+                decision = acquire.decide(list(hypotheses), None, half, t_eval, acfg, cfg.centre_margin_m, court_marks)
         poses = [h.pose for h in hypotheses]
         if decision.index is None:
             best = self._nearest(list(hypotheses), prior, t)
@@ -273,7 +286,8 @@ class GeometricLocalizer:
             twins.append((LocalizeResult(pose=pose, fit=FitResult(**{**res.fit.__dict__, "pose": mirror(res.fit.pose)}),
                                          mode=res.mode, status=res.status),
                           acquire.Hypothesis(motion.mirrored(h.state), mirror(h.origin), h.origin_t,
-                                             None if h.origin_cov is None else h.origin_cov.copy(), h.pinned)))
+                                             None if h.origin_cov is None else h.origin_cov.copy(), h.pinned,
+                                             None if h.pinned_sighting is None else h.pinned_sighting.mirrored(mirror))))
         return live + twins
 
     def _merge(self, live: list[tuple[LocalizeResult, acquire.Hypothesis]]) -> list[tuple[LocalizeResult, acquire.Hypothesis]]:
@@ -283,10 +297,17 @@ class GeometricLocalizer:
         for res, h in sorted(live, key=lambda rh: (rh[1].state.lost, rh[0].fit.cost)):
             for k, (kept_res, kept) in enumerate(out):
                 if acquire.same_pose(h.pose, kept.pose, acfg):
+                    # Both saw the same frames' marks (a twin remade from its mirror has seen none yet).
+                    kept = replace(kept, marks=tuple(max(a, b) for a, b in zip(kept.marks, h.marks)))
+                    out[k] = (kept_res, kept)
                     if h.origin_t is not None and kept.origin_t is not None and h.origin_t < kept.origin_t:
-                        # One pose tracked since the earlier sighting: that sighting is its evidence.
-                        out[k] = (kept_res, acquire.Hypothesis(kept.state, h.origin, h.origin_t, h.origin_cov,
-                                                               kept.pinned or h.pinned))
+                        # One pose tracked since the earlier sighting: that sighting is its evidence, and so
+                        # is the earliest pinned one of either when that sighting was not pinned.
+                        pinned = [p for p in (h.earliest_pinned(), kept.earliest_pinned()) if p is not None]
+                        earliest = min(pinned, key=lambda p: -math.inf if p.t is None else p.t, default=None)
+                        out[k] = (kept_res, acquire.Hypothesis(
+                            kept.state, h.origin, h.origin_t, h.origin_cov, kept.pinned or h.pinned,
+                            None if h.pinned and h.pinned_sighting is None else earliest, kept.marks))
                     break
             else:
                 out.append((res, h))
@@ -296,8 +317,8 @@ class GeometricLocalizer:
         """The hypothesis an undecided frame answers (invalid): nearest a pose prior, else the best fit."""
         if prior is None or prior.pose is None:
             return 0
-        return min(range(len(hypotheses)), key=lambda i: acquire.prior_distance2(
-            prior, hypotheses[i].origin, hypotheses[i].origin_t, self.config.acquire))
+        return min(range(len(hypotheses)), key=lambda i: acquire.hypothesis_distance2(
+            prior, hypotheses[i], self.config.acquire))
 
     @staticmethod
     def _status(res: LocalizeResult, status: str) -> LocalizeResult:

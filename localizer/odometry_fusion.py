@@ -43,6 +43,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from courtloc.common.messages import HOST, Odometry
 from courtloc.localizer import motion
+from courtloc.world.angles import wrap_angle
 
 
 class FusionConfig(BaseModel):
@@ -97,10 +98,6 @@ class OdometryDelta:
     slip: bool
 
 
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2 * math.pi) - math.pi
-
-
 class OdometryBuffer:
     """Recent odometry of one epoch at a time; answers the motion between two times."""
 
@@ -140,7 +137,7 @@ class OdometryBuffer:
         w = (t - a.t) / span if span > 0 else 1.0
         pa, pb = np.array(a.pose), np.array(b.pose)
         step = pb - pa
-        step[2] = _wrap(step[2])
+        step[2] = wrap_angle(step[2])
         return pa + w * step, a.slip or b.slip
 
     def delta(self, t0: float, t1: float, max_extrapolate_s: float) -> Optional[OdometryDelta]:
@@ -151,7 +148,7 @@ class OdometryBuffer:
         (a, slip0), (b, slip1) = p0, p1
         c, s = math.cos(a[2]), math.sin(a[2])
         d = b[:2] - a[:2]
-        return OdometryDelta(dx=c * d[0] + s * d[1], dy=-s * d[0] + c * d[1], dyaw=_wrap(b[2] - a[2]),
+        return OdometryDelta(dx=c * d[0] + s * d[1], dy=-s * d[0] + c * d[1], dyaw=wrap_angle(b[2] - a[2]),
                              slip=slip0 or slip1)
 
 
@@ -260,7 +257,7 @@ class OdometryFusion:
             if dt <= 0:
                 return "stalled_clock"
             moved = math.hypot(m.odom_x_m - last.pose[0], m.odom_y_m - last.pose[1])
-            turned = abs(_wrap(m.odom_yaw_rad - last.pose[2]))
+            turned = abs(wrap_angle(m.odom_yaw_rad - last.pose[2]))
             if moved > cfg.max_speed_m_s * dt + 0.01 or turned > cfg.max_yaw_rate_rad_s * dt + 0.01:
                 # A jump in the cumulative pose: nothing before it can be differenced with anything after.
                 self.buffer.clear()
@@ -297,7 +294,7 @@ class OdometryFusion:
         mean = state.mean.copy()
         mean[0] = x + c * dx - s * dy
         mean[1] = y + s * dx + c * dy
-        mean[2] = _wrap(yaw + dyaw)
+        mean[2] = wrap_angle(yaw + dyaw)
         mean[3], mean[4], mean[5] = (mean[0] - x) / dt, (mean[1] - y) / dt, dyaw / dt
         # Jacobian of the pose with respect to the previous pose (yaw turns the step) and to the
         # learnt scale and bias, whose uncertainty the step inherits.
@@ -381,7 +378,7 @@ class OdometryFusion:
             return  # while suspected, recovery is counted by after_frame
         if fused and after is not None:
             nu = after.mean[:3] - before.mean[:3]
-            nu[2] = _wrap(float(nu[2]))
+            nu[2] = wrap_angle(float(nu[2]))
             s = before.cov[:3, :3] + np.diag([0.02 ** 2, 0.02 ** 2, math.radians(1.0) ** 2])
             if float(nu @ np.linalg.solve(s, nu)) > self.config.disagree_chi2:
                 self._suspect("restart")
@@ -419,7 +416,7 @@ class OdometryFusion:
             self.counts["learn_skipped"] += 1
             return
         self.counts["learnt"] += 1
-        vision_turn = _wrap(float(pose[2] - pose0[2]))
+        vision_turn = wrap_angle(float(pose[2] - pose0[2]))
         # Two fixes' yaw errors (~0.2 deg each) over dt: the observation's variance.
         yaw_var = 2 * math.radians(0.3) ** 2
         self.bias.observe((delta.dyaw - vision_turn) / dt, yaw_var / (dt * dt))
@@ -438,14 +435,14 @@ class OdometryFusion:
 
 
 def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, width: int, height: int,  # noqa: ANN001
-                state, t: Optional[float]):  # noqa: ANN001, ANN201
+                state, t: Optional[float], marks: Optional[np.ndarray] = None):  # noqa: ANN001, ANN201
     """One tracked frame with odometry around it: (Prediction, next state, reason when odometry decided).
 
     Without fusion it is exactly `predictor.track`."""
     if fusion is None or not isinstance(state, (motion.MotionState, type(None))):
         # Without fusion, or while the localizer acquires (its state is the evidence between hypotheses,
         # not a track odometry could move): exactly `predictor.track`.
-        pred, after = predictor.track(hits, width, height, state, t=t)
+        pred, after = predictor.track(hits, width, height, state, t=t, marks=marks)
         if fusion is not None and pred.valid and isinstance(after, motion.MotionState):
             fusion.note_acquired(after, t, len(hits))
         return pred, after, ""
@@ -453,7 +450,7 @@ def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, w
     if fusion.search_pending and before is not None:
         before = fusion.search_next(before, predictor.localizer.config.motion)
         fusion.search_pending = False
-    pred, after = predictor.track(hits, width, height, before, t=t)
+    pred, after = predictor.track(hits, width, height, before, t=t, marks=marks)
     if not isinstance(after, (motion.MotionState, type(None))):  # the track was dropped: acquiring again
         return pred, after, ""
     # lost == 0 after the step: a fit was fused, or a valid one (re)started the track.

@@ -28,6 +28,7 @@ from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import kernel_active
 from courtloc.localizer.geometric import GeometricLocalizer, LocalizeResult
 from courtloc.localizer.manifest import MODEL_FILE, PAPER_KINDS, Manifest, ManifestError
+from courtloc.localizer.marks import mark_points
 from courtloc.localizer.model_file import ModelFile
 from courtloc.localizer.package import load_package
 from courtloc.localizer.paper_input import dense_input, hits_to_dense_input, hits_to_sparse_input, sparse_input
@@ -59,8 +60,9 @@ class Predictor(Protocol):
                 previous: Optional[Prediction | Sequence[float]] = None) -> Prediction: ...
 
     def track(self, hits: np.ndarray, width: int, height: int, state: object,
-              t: float | None = None) -> tuple[Prediction, object]:
-        """One frame of a track: the prediction and the state to hand back with the next frame."""
+              t: float | None = None, marks: np.ndarray | None = None) -> tuple[Prediction, object]:
+        """One frame of a track: the prediction and the state to hand back with the next frame; `marks` the
+        frame's colour marks (int16 rows of (row, col, mark index)), for a model that weighs them."""
 
 
 def _session(model: ModelFile, providers: Sequence[str] | None, threads: int) -> ort.InferenceSession:
@@ -138,13 +140,18 @@ class GeometricPredictor:
         self._check_size(width, height)
         return _prediction(self.localizer.localize(self.projected_hits(hits), _previous_pose(previous)))
 
-    def track(self, hits: np.ndarray, width: int, height: int, state, t: float | None = None):  # noqa: ANN001
+    def track(self, hits: np.ndarray, width: int, height: int, state, t: float | None = None,  # noqa: ANN001
+              marks: np.ndarray | None = None):  # noqa: ANN201
         """One frame of a motion-filtered track (`GeometricLocalizer.track`): (Prediction, next state).
 
         `state` is what the previous call returned (None to start: the frame is a global search); t is the
-        frame's capture time in seconds on one clock (None: frames a nominal period apart)."""
+        frame's capture time in seconds on one clock (None: frames a nominal period apart); `marks` the
+        frame's colour marks, evidence when the package's court has marks."""
         self._check_size(width, height)
-        step = self.localizer.track(self.projected_hits(hits), state, t)
+        points = None
+        if marks is not None and len(marks) and self.localizer.mark_map is not None:
+            points = mark_points(self.floor_table, self.width, np.asarray(marks))
+        step = self.localizer.track(self.projected_hits(hits), state, t, points)
         return _prediction(step.result), step.state
 
 
@@ -189,8 +196,8 @@ class PaperPredictor:
                           n_hits=len(h))
 
     def track(self, hits: np.ndarray, width: int, height: int, state: object,
-              t: float | None = None) -> tuple[Prediction, object]:
-        """The network sees each frame alone: tracking is predicting, and there is no state."""
+              t: float | None = None, marks: np.ndarray | None = None) -> tuple[Prediction, object]:
+        """The network sees each frame alone: tracking is predicting, and there is no state (nor marks)."""
         return self.predict(hits, width, height), None
 
     def dots_feed(self, dots: np.ndarray) -> dict[str, np.ndarray]:

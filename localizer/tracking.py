@@ -53,17 +53,19 @@ class Tracker:
             self.previous = None
 
     def step(self, predictor: Predictor, hits: np.ndarray, width: int, height: int, t: float | None,
-             fusion: OdometryFusion | None = None, capture_wall_ns: int | None = None) -> Prediction:
+             fusion: OdometryFusion | None = None, capture_wall_ns: int | None = None,
+             marks: np.ndarray | None = None) -> Prediction:
         """Localise one frame from what this tracker knows, and learn from the answer.
 
         `t` is the frame's capture time in seconds on one clock (the filter predicts over the real interval);
         `capture_wall_ns` its wall-clock time, which ages a pose saved before a restart (None: offline data).
         With `fusion` (a geometric model's serving tracker) odometry predicts between the frames; why
-        odometry made a frame invalid is left in `odometry_reason`.
+        odometry made a frame invalid is left in `odometry_reason`. `marks`: the frame's colour marks (int16
+        rows of (row, col, mark index)), evidence where the court has them.
         """
         state = self.state_for(capture_wall_ns)
         prediction, self.motion, self.odometry_reason = fused_track(predictor, fusion, hits, width, height,
-                                                                    state, t)
+                                                                    state, t, marks)
         self.update(prediction.x, prediction.y, prediction.yaw, prediction.valid, prediction.trackable)
         return prediction
 

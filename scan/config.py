@@ -64,6 +64,13 @@ class ScanConfig(_Strict):
     rounding: Literal["trunc", "half_up"] = "trunc"
     # Last d walked (inclusive); None means the paper's max(H, W).
     max_d: Optional[int] = Field(default=None, gt=0)
+    # A hit must also be an edge in brightness: the last white sample is brighter (HSV V) by at least this
+    # much than the darkest of the hit and the `edge_drop_samples` - 1 samples after it on the ray. Paint
+    # ends within a pixel or two; a floor that light, gloss or texture lifts past the white threshold fades
+    # out over many, and without this rule its patches gave hundreds of hits that a wrong pose fitted
+    # (docs/preprocess.md, "Edge drop"). 0: the paper's Algorithm 1 exactly (the seed dots' scan).
+    min_edge_drop: int = Field(default=30, ge=0, le=255)
+    edge_drop_samples: int = Field(default=3, ge=1, le=16)
 
     @model_validator(mode="after")
     def _check_angles(self) -> "ScanConfig":
@@ -89,6 +96,13 @@ class ScanConfig(_Strict):
         return self.max_d if self.max_d is not None else max(height, width)
 
 
+class MarkClass(_Strict):
+    """A colour the scan reports where it sees it (`PreprocessConfig.marks`): a court's colour mark."""
+
+    name: str = Field(max_length=64)
+    hsv_ranges: tuple[HsvRange, ...] = Field(min_length=1)
+
+
 class DebugPreviewConfig(_Strict):
     """A JPEG of the mask with the hits drawn on it, for a human watching; costly, so off and rate-limited."""
 
@@ -108,6 +122,11 @@ class PreprocessConfig(_Strict):
     # Radius of the dots drawn for the paper's model, as in the seed images.
     dot_radius: int = Field(default=2, ge=0)
     debug_preview: DebugPreviewConfig = DebugPreviewConfig()
+    # The court's colour marks (filled from the deployment's court, `Court.marks`; in that order: a mark's
+    # index is its place here): pixels of a grid `mark_grid_px` apart in those colours, at most `max_marks`.
+    marks: tuple[MarkClass, ...] = Field(default=(), max_length=8)
+    mark_grid_px: int = Field(default=8, ge=1, le=64)
+    max_marks: int = Field(default=256, ge=1, le=1024)
 
     @model_validator(mode="after")
     def _check_crop(self) -> "PreprocessConfig":

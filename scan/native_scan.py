@@ -28,10 +28,13 @@ def load_kernel() -> ModuleType | None:
 
 
 def kernel_hit_samples(kernel: ModuleType, bgr: np.ndarray, pixel_offsets: np.ndarray, sample_pixel: np.ndarray,
-                       has_predecessor: np.ndarray, bit_table: np.ndarray) -> np.ndarray:
+                       has_predecessor: np.ndarray, bit_table: np.ndarray, min_edge_drop: int = 0,
+                       edge_drop_samples: int = 1) -> np.ndarray:
     """Indices of the hit samples of one contiguous BGR frame (see scan_kernel.c for the arguments)."""
-    # Fresh scratch per call: two small allocations, and nothing shared between threads.
+    # Fresh scratch per call: three small allocations, and nothing shared between threads.
     is_white = np.empty(pixel_offsets.shape[0], np.uint8)
+    bright = np.empty(pixel_offsets.shape[0], np.uint8)
     out = np.empty(sample_pixel.shape[0], np.int32)
-    n = kernel.scan_hits(bgr, pixel_offsets, sample_pixel, has_predecessor, bit_table, is_white, out)
+    n = kernel.scan_hits(bgr, pixel_offsets, sample_pixel, has_predecessor, bit_table, is_white, bright, out,
+                         min_edge_drop, edge_drop_samples)
     return out[:n]

@@ -12,6 +12,7 @@ import numpy as np
 from courtloc.common.payloads import FrameError, check_bgr
 from courtloc.scan.config import PreprocessConfig
 from courtloc.scan.hsv_mask import WhiteMask
+from courtloc.scan.marks import MarkFinder
 from courtloc.scan.radial_scan import RadialScanner
 from courtloc.scan.seed_dots import stamp_dots
 
@@ -39,6 +40,7 @@ class Preprocessor:
         self.config = config
         self._white = WhiteMask(config.hsv_ranges)
         self._scanner = RadialScanner(config.scan, native=native)
+        self._marks = MarkFinder(config.marks, config.mark_grid_px, config.max_marks)
 
     @property
     def native(self) -> bool:
@@ -56,6 +58,10 @@ class Preprocessor:
     def process(self, bgr: np.ndarray) -> np.ndarray:
         """Hits of one frame, ordered by ray then d; FrameError for a frame of the wrong kind."""
         return self._scanner.scan_bgr(self.check(bgr), self._white)
+
+    def marks(self, bgr: np.ndarray) -> np.ndarray:
+        """The colour marks of one frame (`scan.marks`): int16 (M, 3) rows (row, col, mark index)."""
+        return self._marks.find(self.check(bgr))
 
     def process_with_paper(self, bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(hits, paper_image) of one frame: everything the paper's pipeline produced, in one call."""

@@ -149,8 +149,24 @@ def build_ray_table(height: int, width: int, scan: ScanConfig) -> RayTable:
     return table
 
 
-def hits_of_values(values: np.ndarray, table: RayTable) -> np.ndarray:
-    """Hits from the (S,) mask values of the table's samples, two-valued: 0/255 or bool."""
+def edge_drops(brightness: np.ndarray, hit: np.ndarray, table: RayTable, span: int) -> np.ndarray:
+    """For each hit sample: the brightness of the sample before it less the darkest of it and the span - 1
+    samples after it on the same ray (what `ScanConfig.min_edge_drop` is compared with)."""
+    bright = brightness.astype(np.int16)
+    lowest = bright[hit]
+    on_ray = np.ones(hit.shape[0], bool)
+    last = bright.shape[0] - 1
+    for k in range(1, span):
+        nxt = np.minimum(hit + k, last)
+        on_ray &= (hit + k <= last) & table.pair_on_ray[nxt - 1]
+        lowest = np.where(on_ray, np.minimum(lowest, bright[nxt]), lowest)
+    return bright[hit - 1] - lowest
+
+
+def hits_of_values(values: np.ndarray, table: RayTable, brightness: np.ndarray | None = None,
+                   min_edge_drop: int = 0, edge_drop_samples: int = 1) -> np.ndarray:
+    """Hits from the (S,) mask values of the table's samples, two-valued: 0/255 or bool; with `brightness`
+    (S,) and `min_edge_drop` > 0, only where the brightness also drops that much (ScanConfig)."""
     if values.shape[0] < 2:
         return empty_hits()
     # A hit: previous sample white, this one not. With two-valued samples that is previous > current;
@@ -158,6 +174,8 @@ def hits_of_values(values: np.ndarray, table: RayTable) -> np.ndarray:
     # Pairs straddling two rays are dropped after the search: there are few candidates, many pairs.
     pair = np.flatnonzero(values[:-1] > values[1:])
     pair = pair[table.pair_on_ray[pair]]
+    if brightness is not None and min_edge_drop > 0:
+        pair = pair[edge_drops(brightness, pair + 1, table, edge_drop_samples) >= min_edge_drop]
     return table.sample_hit[pair + 1]
 
 
@@ -202,9 +220,11 @@ class RadialScanner:
             return empty_hits()
         if self._kernel is not None and table.pixel_offsets.shape[0] == table.pixels.shape[0]:
             hit_samples = kernel_hit_samples(self._kernel, np.ascontiguousarray(bgr), table.pixel_offsets,
-                                             table.sample_pixel32, table.has_predecessor, white.bit_table())
+                                             table.sample_pixel32, table.has_predecessor, white.bit_table(),
+                                             self.scan.min_edge_drop, self.scan.edge_drop_samples)
             return table.sample_hit[hit_samples]
         # cv2.remap with nearest-neighbour and integral maps is an exact, fast gather of pixels.
         pixels = cv2.remap(np.ascontiguousarray(bgr), table.gather_x, table.gather_y, cv2.INTER_NEAREST)
         values = white.frame(pixels).reshape(-1)[table.sample_pixel]
-        return hits_of_values(values, table)
+        brightness = pixels.max(axis=2).reshape(-1)[table.sample_pixel] if self.scan.min_edge_drop else None
+        return hits_of_values(values, table, brightness, self.scan.min_edge_drop, self.scan.edge_drop_samples)

@@ -15,6 +15,9 @@ Rules fixed here (documented in docs/preprocess.md):
 - Hit: the previous in-image sample is white and this one is not. The hit is reported at this sample's
   (row, col, ray index k, d). Consecutive samples on a ray that round to the same pixel are kept; they
   cannot make or break a hit because a pixel is never both white and not white.
+- Edge drop (ours, not the paper's; `ScanConfig.min_edge_drop`, 0 = off): a hit also needs the previous
+  sample's brightness (HSV V = max(B, G, R)) to exceed the darkest of the hit's pixel and the next
+  `edge_drop_samples` - 1 pixels on the ray (distinct pixels, in image) by at least `min_edge_drop`.
 - Output: int16 (N, 4) rows (row, col, ray, d), ordered by ray, then by d.
 """
 from __future__ import annotations
@@ -37,29 +40,52 @@ def to_pixel_function(rounding: str) -> Callable[[float], int]:
     return {"trunc": int, "half_up": round_half_up}[rounding]
 
 
-def reference_scan(mask: np.ndarray, scan: ScanConfig) -> np.ndarray:
-    """Walk every ray pixel by pixel over a (H, W) mask (non-zero = white)."""
-    height, width = mask.shape
+def _ray_pixels(ray_angle_deg: float, height: int, width: int, scan: ScanConfig) -> list[tuple[int, int, int]]:
+    """(row, col, d) of the in-image samples of one ray, in order of d."""
     cx, cy = scan.origin_for(height, width)
-    max_d = scan.max_d_for(height, width)
     to_pixel = to_pixel_function(scan.rounding)
+    a = math.radians(ray_angle_deg)
+    cos_a, sin_a = math.cos(a), math.sin(a)
+    samples = []
+    for d in range(scan.max_d_for(height, width) + 1):
+        col = to_pixel(cx + d * cos_a)
+        row = to_pixel(cy - d * sin_a)
+        if 0 <= row < height and 0 <= col < width:
+            samples.append((row, col, d))
+    return samples
+
+
+def _drop_after(brightness: np.ndarray, samples: list[tuple[int, int, int]], i: int, span: int) -> int:
+    """Brightness of the sample before i less the darkest of sample i's pixel and the span - 1 distinct
+    pixels after it."""
+    pixels: list[tuple[int, int]] = []
+    for row, col, _ in samples[i:]:
+        if not pixels or pixels[-1] != (row, col):
+            pixels.append((row, col))
+        if len(pixels) == span:
+            break
+    before = samples[i - 1]
+    return int(brightness[before[0], before[1]]) - min(int(brightness[r, c]) for r, c in pixels)
+
+
+def reference_scan(mask: np.ndarray, scan: ScanConfig, brightness: np.ndarray | None = None) -> np.ndarray:
+    """Walk every ray pixel by pixel over a (H, W) mask (non-zero = white); with `brightness` (H, W) and
+    `scan.min_edge_drop` > 0, keep only hits with that edge drop."""
+    height, width = mask.shape
+    drop = scan.min_edge_drop if brightness is not None else 0
     hits: list[tuple[int, int, int, int]] = []
     for ray, angle_deg in enumerate(scan.angles_deg()):
-        a = math.radians(angle_deg)
-        cos_a, sin_a = math.cos(a), math.sin(a)
-        previous_white: bool | None = None  # None: no in-image sample yet on this ray
-        for d in range(max_d + 1):
-            col = to_pixel(cx + d * cos_a)
-            row = to_pixel(cy - d * sin_a)
-            if not (0 <= row < height and 0 <= col < width):
-                continue
+        samples = _ray_pixels(angle_deg, height, width, scan)
+        for i, (row, col, d) in enumerate(samples):
             white = bool(mask[row, col] != 0)
-            if previous_white is True and not white:
+            previous_white = i > 0 and bool(mask[samples[i - 1][0], samples[i - 1][1]] != 0)
+            if previous_white and not white and (
+                    drop == 0 or _drop_after(brightness, samples, i, scan.edge_drop_samples) >= drop):
                 hits.append((row, col, ray, d))
-            previous_white = white
     return np.array(hits, dtype=np.int16).reshape(-1, 4)
 
 
 def reference_preprocess(bgr: np.ndarray, config: PreprocessConfig) -> np.ndarray:
-    """BGR frame -> HSV white mask (full frame) -> `reference_scan` hits."""
-    return reference_scan(white_mask(bgr, config.hsv_ranges), config.scan)
+    """BGR frame -> HSV white mask (full frame) -> `reference_scan` hits (with the edge drop of the
+    frame's brightness, V = max(B, G, R))."""
+    return reference_scan(white_mask(bgr, config.hsv_ranges), config.scan, bgr.max(axis=2))

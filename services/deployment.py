@@ -14,15 +14,15 @@ from typing import Optional, Sequence
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from courtloc.common.bus import RouterUnreachable, ZenohConfig, wait_for_router
+from courtloc.common.bus import RouterUnreachable, ZenohConfig, check_zenoh_id, wait_for_router
 from courtloc.common.config_loader import ConfigError, load_model, resolve_relative_paths
 from courtloc.common.exposure import insecure_exposure, is_loopback, warn_while_insecure
 from courtloc.common.realtime import RealtimeConfig, RealtimeError, apply_realtime
 from courtloc.common.runtime import HEALTH_PERIOD_S, Service
 from courtloc.common.security import with_identity
 from courtloc.common.services_table import SERVICES, check_robot_id
-from courtloc.scan.config import PreprocessConfig
-from courtloc.services.camera.config import CameraConfig, sim_source_config
+from courtloc.scan.config import HsvRange, MarkClass, PreprocessConfig
+from courtloc.services.camera.config import CameraConfig, SimRoute
 from courtloc.services.infer.config import InferConfig, StartConfig
 from courtloc.services.shooter_bridge.config import ShooterConfig
 from courtloc.world.camera import load_camera
@@ -92,8 +92,11 @@ class DeploymentConfig(BaseModel):
             self.camera.sim = {**self.camera.sim, "camera": self.camera_model}
         if self.camera.source == "sim" and "start" not in self.infer.model_fields_set:
             # The simulated robot starts where its trajectory does: the start a team would configure.
-            infer_update["start"] = sim_start(sim_source_config(self.camera))
+            infer_update["start"] = sim_start(self.camera.sim_route())
         self.infer = self.infer.model_copy(update=infer_update)
+        if "marks" not in self.preprocess.model_fields_set:
+            # The court's asymmetric colours, in the court's order: the infer stage reads a mark's index so.
+            self.preprocess = self.preprocess.model_copy(update={"marks": court_marks(self.court)})
         target = self.shooter_bridge.target
         if "court" not in target.model_fields_set and target.ring is None:
             self.shooter_bridge = self.shooter_bridge.model_copy(
@@ -132,7 +135,13 @@ def _court_and_camera(court: str, camera: str | None) -> tuple[str, str]:
     return model.name, load_camera(camera or model.default_camera).name
 
 
-def sim_start(sim: SimSourceConfig) -> StartConfig | None:  # noqa: F821 - the twin's config type
+def court_marks(court: str) -> tuple[MarkClass, ...]:
+    """The preprocess stage's colour marks for a court (`Court.marks`)."""
+    return tuple(MarkClass(name=m.name, hsv_ranges=tuple(HsvRange(lower=lo, upper=hi) for lo, hi in m.hsv_ranges))
+                 for m in load_court(court).marks)
+
+
+def sim_start(sim: SimRoute) -> StartConfig | None:
     """Where the simulated robot starts, as a start with a generous spread (the stages come up while it
     already drives: the infer stage's first frame can be seconds into the run)."""
     if sim.trajectory == "waypoints" and len(sim.waypoints) >= 2:
@@ -161,6 +170,9 @@ def stage_main(stage_class: type[Service], argv: Sequence[str] | None = None) ->
     parser.add_argument("--timeout", type=float, default=None, help="give up when no router answers within S s")
     parser.add_argument("--fresh-run", action="store_true",
                         help="a new run (the launcher's first start): a pose saved by an earlier run is not resumed")
+    parser.add_argument("--expect-router", type=_zenoh_id_argument, default=None, metavar="ZID",
+                        help="the zenoh id of the router `courtloc up` started: connected to any other router "
+                             "(another pipeline's, on the port after ours died) the stage exits non-zero")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -177,6 +189,7 @@ def stage_main(stage_class: type[Service], argv: Sequence[str] | None = None) ->
         zenoh_config = config.zenoh.model_copy(update={"security": with_identity(config.zenoh.security, name)})
         stage = stage_class(config.robot_id, zenoh_config, getattr(config, name))  # a bad input file stops it here
         stage.health_period_s = config.health_period_s
+        stage.expected_router_id = args.expect_router
         applied = apply_realtime(name, config.realtime)
         if zenoh_config.mode == "client":  # a peer opens without a router; a client waits for one
             wait_for_router(zenoh_config, args.timeout)
@@ -188,3 +201,10 @@ def stage_main(stage_class: type[Service], argv: Sequence[str] | None = None) ->
     warn_while_insecure(insecure_exposure(config.zenoh.listen, config.zenoh.security is not None),
                         stage.stop_event, logging.getLogger(f"courtloc.{name}"))
     return stage.run()
+
+
+def _zenoh_id_argument(value: str) -> str:
+    try:
+        return check_zenoh_id(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

@@ -9,19 +9,25 @@ from functools import lru_cache
 
 import numpy as np
 
-from courtloc.scan.config import PreprocessConfig
+from courtloc.scan.config import PreprocessConfig, ScanConfig
 from courtloc.scan.preprocessor import Preprocessor
 from courtloc.scan.seed_dots import dots_to_hits, draw_hits
 
 
-@lru_cache(maxsize=1)
-def _preprocessor():
-    return Preprocessor(PreprocessConfig())
+@lru_cache(maxsize=2)
+def _preprocessor(paper: bool = False) -> Preprocessor:
+    return Preprocessor(PreprocessConfig(scan=ScanConfig(min_edge_drop=0)) if paper else PreprocessConfig())
 
 
 def scan_hits(bgr: np.ndarray) -> np.ndarray:
     """int16 (N, 4) hits (row, col, ray, d) of a BGR frame with the default preprocess configuration."""
     return _preprocessor().process(bgr)
+
+
+def paper_scan_hits(bgr: np.ndarray) -> np.ndarray:
+    """The hits the paper's Algorithm 1 gives (no edge drop): what the seed recordings' dots are, so what
+    a dataset in their format holds."""
+    return _preprocessor(paper=True).process(bgr)
 
 
 def dot_centres(image: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from courtloc.sim.edges import hits_image, scan_hits
+from courtloc.sim.edges import hits_image, paper_scan_hits
 from courtloc.sim.labels import SEED_COLUMNS, yaw_to_orientation_z
 from courtloc.sim.render import Renderer, RenderOptions
 from courtloc.world.camera import load_camera
@@ -114,7 +114,7 @@ def synth(config: SynthConfig, progress: Callable[[int, int, int], None] | None 
             else:
                 pose = sample_pose(court, config.seed, i, config.margin_m)
                 frame = renderer.render(pose, options, np.random.default_rng([config.seed, i, 2]))
-                image = frame if config.kind == "raw" else hits_image(scan_hits(frame), frame.shape[0], frame.shape[1])
+                image = frame if config.kind == "raw" else hits_image(paper_scan_hits(frame), frame.shape[0], frame.shape[1])
                 tmp = images / (name + ".tmp.jpg")
                 if not cv2.imwrite(str(tmp), image, [cv2.IMWRITE_JPEG_QUALITY, config.jpeg_quality]):
                     raise OSError(f"could not write {tmp}")

@@ -13,6 +13,7 @@ import pytest
 from buskit import PYTHON, BusClient, Proc, free_port, start_router, start_stage, write_config
 from infer_models import TwinFrames, first_valid_pose, request_pose, run_model_cli
 
+from courtloc.services.deployment import load_deployment
 from courtloc.services.infer.service import bundled_default
 from courtloc.stage_cli import stage_argv
 
@@ -26,8 +27,8 @@ def _near(pose, truth, tol: float = 0.1) -> bool:  # noqa: ANN001
 
 
 def _pose_set(config: Path, *args: str) -> tuple[int, dict]:
-    done = subprocess.run([*PYTHON, "pose", "set", *args, "--config", str(config), "--json"], capture_output=True,
-                          text=True, timeout=60)
+    done = subprocess.run([*PYTHON, "pose", "set", *args, "--config", str(config), "--json", "-"],
+                          capture_output=True, text=True, timeout=60)
     return done.returncode, (json.loads(done.stdout) if done.stdout else {"stderr": done.stderr})
 
 
@@ -135,7 +136,7 @@ drift_mps = 0.2
     # A new run (`courtloc up` starts each stage with --fresh-run, restarts without): the pose the last run
     # saved seconds ago is not its evidence; the configured start is.
     assert (store.parent / "store.last-pose.json").is_file()
-    infer = Proc(stage_argv("infer", restarted, verbose=1, fresh_run=True)).start()
+    infer = Proc(stage_argv("infer", restarted, load_deployment(restarted), verbose=1, fresh_run=True)).start()
     try:
         infer.wait_line("infer running for robot", timeout=60)
         assert not [line for line in infer.lines if "resuming from the pose saved" in line]

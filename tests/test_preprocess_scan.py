@@ -27,7 +27,7 @@ def native(request: pytest.FixtureRequest) -> bool:
 def test_compiled_scan_is_built_where_a_compiler_is() -> None:
     if shutil.which("cc") is None and shutil.which("gcc") is None:
         pytest.skip("no C compiler on this machine: the numpy scan is the one in use")
-    assert RadialScanner(ScanConfig()).native, "pip install -e . should have compiled services/preprocess/scan_kernel.c"
+    assert RadialScanner(ScanConfig()).native, "pip install -e . should have compiled scan/scan_kernel.c"
 
 
 def any_size(config: PreprocessConfig) -> PreprocessConfig:
@@ -121,6 +121,52 @@ def test_no_hits_on_uniform_frames_and_edges_need_white_before_dark() -> None:
     mask = np.full((48, 64), 255, np.uint8)
     mask[30:, 20:44] = 0
     assert len(scanner.scan_mask(mask)) == 0
+
+
+def _lit_floor_frame(height: int = 480, width: int = 640) -> np.ndarray:
+    """A light grey floor (V 185) that a lamp lifts smoothly past the white threshold (V 200) in a patch,
+    with one white line across the frame below the patch."""
+    rows, cols = np.mgrid[0:height, 0:width]
+    lamp = 30.0 * np.exp(-((rows - 150.0) ** 2 + (cols - 320.0) ** 2) / (2 * 90.0 ** 2))
+    frame = np.repeat((185.0 + lamp)[..., None], 3, axis=2).astype(np.uint8)
+    cv2.line(frame, (0, 330), (width - 1, 300), (250, 250, 250), 5)
+    return frame
+
+
+def test_a_floor_lifted_past_the_white_threshold_gives_no_hits_but_paint_on_it_does(native: bool) -> None:
+    """The edge drop (ScanConfig.min_edge_drop): paint ends within a pixel or two, a lit floor fades out
+    over tens. Without it every ray through the lit patch reports a hit where the light fades (the
+    robocon2025 twin's randomised frames had hundreds, and a wrong pose fitted them)."""
+    frame = _lit_floor_frame()
+    paper = PreprocessConfig(scan=ScanConfig(min_edge_drop=0))
+    ours = PreprocessConfig()
+    assert ours.scan.min_edge_drop > 0
+    on_line = lambda hits: (hits[:, 0] >= 295) & (hits[:, 0] <= 340)  # noqa: E731
+    paper_hits = Preprocessor(paper, native=native).process(frame)
+    hits = Preprocessor(ours, native=native).process(frame)
+    assert np.count_nonzero(~on_line(paper_hits)) >= 10, "the patch really crosses the white threshold"
+    assert np.count_nonzero(~on_line(hits)) == 0
+    # Every ray that leaves the line upwards still reports it.
+    assert set(paper_hits[on_line(paper_hits), 2].tolist()) == set(hits[on_line(hits), 2].tolist())
+    assert_same_hits(hits, reference_preprocess(frame, ours))
+
+
+def test_the_edge_drop_looks_only_as_far_as_edge_drop_samples(native: bool) -> None:
+    """A white band whose far side ramps down to the floor over 8 pixels: a hit with a 3-pixel look-ahead
+    sees a 3-step slice of the ramp, with a 10-pixel look-ahead the whole drop."""
+    height, width = 120, 160
+    frame = np.full((height, width, 3), 120, np.uint8)
+    frame[40:60] = 250
+    for k in range(8):  # rows 39..32 ramp from 205 down to 135, just above the floor
+        frame[39 - k] = 205 - 10 * k
+    short = PreprocessConfig(scan=ScanConfig(min_edge_drop=40, edge_drop_samples=3), frame_width=None,
+                             frame_height=None)
+    long = PreprocessConfig(scan=ScanConfig(min_edge_drop=40, edge_drop_samples=10), frame_width=None,
+                            frame_height=None)
+    assert len(Preprocessor(short, native=native).process(frame)) == 0
+    assert len(Preprocessor(long, native=native).process(frame)) > 0
+    for config in (short, long):
+        assert_same_hits(Preprocessor(config, native=native).process(frame), reference_preprocess(frame, config))
 
 
 def test_hits_are_ordered_by_ray_then_distance() -> None:

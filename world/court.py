@@ -153,6 +153,27 @@ class WhitePolygon(BaseModel):
     holes: list[np.ndarray]
 
 
+HsvTriple = tuple[int, int, int]
+
+
+class ColourMark(_Strict):
+    """A floor colour that tells the court's point-symmetric twins apart (robocon2025's red strip along +y and
+    blue strip along -y): where it is painted (`colour`, a palette name) and how a camera sees it (OpenCV
+    8-bit HSV boxes, inclusive, as `cv2.inRange` takes them: H 0..179, S and V 0..255)."""
+
+    name: str
+    colour: str
+    hsv_ranges: list[tuple[HsvTriple, HsvTriple]] = Field(min_length=1)
+
+    @model_validator(mode="after")
+    def _boxes(self) -> "ColourMark":
+        for lower, upper in self.hsv_ranges:
+            if not all(0 <= v <= m for v, m in zip((*lower, *upper), (179, 255, 255) * 2)) or \
+                    any(lo > hi for lo, hi in zip(lower, upper)):
+                raise ValueError(f"mark {self.name!r}: HSV box {lower}..{upper} out of range or inverted")
+        return self
+
+
 class Court(_Strict):
     name: str
     provenance: str = ""
@@ -174,13 +195,15 @@ class Court(_Strict):
     lines: list[Line] = Field(default_factory=list)
     rings: list[Ring] = Field(min_length=1)
     default_camera: str
+    marks: list[ColourMark] = Field(default_factory=list, description="floor colours that break the white "
+                                    "paint's point symmetry (empty: nothing in a view tells the twins apart)")
 
     _cache: dict = PrivateAttr(default_factory=dict)
 
     @model_validator(mode="after")
     def _colours_known(self) -> "Court":
         used = {r.colour for r in self.regions} | {ln.colour for ln in self.lines}
-        used |= {self.outside_colour, self.background_colour, *self.white_colours}
+        used |= {self.outside_colour, self.background_colour, *self.white_colours, *(m.colour for m in self.marks)}
         missing = sorted(used - set(self.palette))
         if missing:
             raise ValueError(f"court {self.name!r}: colours {missing} are not in the palette")
@@ -262,6 +285,19 @@ class Court(_Strict):
 
     def rgb(self, colour: str) -> tuple[int, int, int]:
         return tuple(int(c) for c in self.palette[colour])  # type: ignore[return-value]
+
+    def mark_map(self, resolution_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """(int8 map: 1 + index of the mark painted at each texel, 0 none; texel->court 3x3) over the floor."""
+        key = ("marks", float(resolution_m))
+        if key not in self._cache:
+            texture, _, transform = self.raster(resolution_m)
+            labels = np.zeros(texture.shape[:2], np.int8)
+            for index, mark in enumerate(self.marks):
+                # Texels within a few levels of the mark's palette colour: the raster is anti-aliased at borders.
+                close = np.abs(texture - np.array(self.rgb(mark.colour), np.float64)).max(axis=2) <= 4.0
+                labels[close] = index + 1
+            self._cache[key] = (labels, transform)
+        return self._cache[key]
 
 
 def _ellipse_arc(centre: Point, semi: tuple[float, float], start_deg: float, end_deg: float) -> np.ndarray:

@@ -12,7 +12,7 @@ from courtloc.common.bus import ZenohConfig
 from courtloc.common.control import ModelReply, PoseReply, SetPose
 from courtloc.common.inbox import Delivery
 from courtloc.common.messages import Edges, Odometry, Pose
-from courtloc.common.payloads import edges_hits
+from courtloc.common.payloads import edges_hits, edges_marks
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Control, Topic
 from courtloc.localizer.acquire import Prior
@@ -137,6 +137,11 @@ class InferService(Service):
         except ValueError as exc:
             self.reject(topic.path, "bad_hits", str(exc))
             return
+        try:
+            marks = edges_marks(message)
+        except ValueError as exc:
+            self.reject(topic.path, "bad_marks", str(exc))
+            return
         model = self.active  # one read: a swap between frames never splits a frame across two models
         assert model is not None
         if not fresh:
@@ -146,16 +151,18 @@ class InferService(Service):
                                             model_name=model.ref.name, model_version=model.ref.version,
                                             infer_ms=0.0, reason="stale_input"))
             return
-        pose = self.make_pose(model, message, hits, fresh=fresh, tracker=self.tracker)
+        pose = self.make_pose(model, message, hits, fresh=fresh, tracker=self.tracker, marks=marks)
         self.publish("infer/pose", pose)
         if pose.header.valid:
             self.resume.offer(self.tracker.tracked_prior(), model.manifest.court, pose.header.capture_wall_ns)
         shadow = self.shadow
         if shadow is not None:
-            shadow.offer(message, hits, pose)
+            shadow.offer(message, hits, pose, marks)
 
-    def make_pose(self, model: LoadedModel, edges: Edges, hits: np.ndarray, fresh: bool, tracker: Tracker) -> Pose:
-        """The pose of one frame; `tracker` gives the start and learns from the result."""
+    def make_pose(self, model: LoadedModel, edges: Edges, hits: np.ndarray, fresh: bool, tracker: Tracker,
+                  marks: np.ndarray | None = None) -> Pose:
+        """The pose of one frame (`marks`: its colour marks, decoded); `tracker` gives the start and learns
+        from the result."""
         start = time.perf_counter()
         reason = ""
         x = y = 0.0
@@ -173,7 +180,7 @@ class InferService(Service):
             # Capture times on the camera's monotonic clock: the filter predicts over the real interval.
             pred = tracker.step(model.predictor, hits, edges.width, edges.height,
                                 t=edges.header.capture_mono_ns * 1e-9, fusion=fusion,
-                                capture_wall_ns=edges.header.capture_wall_ns)
+                                capture_wall_ns=edges.header.capture_wall_ns, marks=marks)
             fusion_reason = tracker.odometry_reason
             covariance = pose_covariance(tracker.motion)
             x, y, yaw, quality = float(pred.x), float(pred.y), pred.yaw, float(pred.quality)
@@ -238,7 +245,7 @@ class InferService(Service):
             old.stop()
         if model is not None:
             self.shadow = ShadowRunner(model, lambda pose: self.publish("infer/shadow_pose", pose),
-                                       lambda m, edges, hits, tracker: self.make_pose(m, edges, hits, True, tracker),
+                                       lambda m, edges, hits, tracker, marks: self.make_pose(m, edges, hits, True, tracker, marks),
                                        tracker=self.tracker.handover())
 
     def active_ref(self) -> ModelRef | None:

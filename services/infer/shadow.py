@@ -32,16 +32,16 @@ class ShadowRunner:
         self._thread = threading.Thread(target=self._run, name="infer-shadow", daemon=True)
         self._thread.start()
 
-    def offer(self, edges: Edges, hits: np.ndarray, active: Pose) -> None:
-        self._inbox.put("frame", (edges, hits, active))
+    def offer(self, edges: Edges, hits: np.ndarray, active: Pose, marks: np.ndarray | None = None) -> None:
+        self._inbox.put("frame", (edges, hits, active, marks))
 
     def _run(self) -> None:
         while not self._stop.is_set():
             delivery = self._inbox.take(timeout=0.5)
             if delivery is None:
                 continue
-            edges, hits, active = delivery.payload
-            pose = self._make_pose(self.model, edges, hits, self._tracker)
+            edges, hits, active, marks = delivery.payload
+            pose = self._make_pose(self.model, edges, hits, self._tracker, marks)
             self._publish(pose)
             if pose.header.valid and active.header.valid:
                 with self._lock:

@@ -9,7 +9,7 @@ import numpy as np
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.inbox import Delivery
 from courtloc.common.messages import Edges, Frame
-from courtloc.common.payloads import FrameError, decode_frame, hits_to_bytes
+from courtloc.common.payloads import FrameError, decode_frame, hits_to_bytes, marks_to_bytes
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Topic
 from courtloc.common.shm_frames import ReceivedFrame, decode_frame_payload
@@ -48,6 +48,7 @@ class PreprocessService(Service):
         try:
             image = decode_frame(message.encoding, received.pixels, message.width, message.height)
             hits = self.preprocessor.process(image)
+            marks = self.preprocessor.marks(image)
         except FrameError as exc:
             self.reject(topic.path, exc.reason, str(exc))
             return
@@ -55,7 +56,7 @@ class PreprocessService(Service):
         header = message.header.forwarded(self.name, valid=message.header.valid and fresh)
         self.publish("preprocess/edges", Edges(
             header=header, width=message.width, height=message.height, crop_top=self.config.crop_top,
-            n_hits=len(hits), hits=hits_to_bytes(hits)))
+            n_hits=len(hits), hits=hits_to_bytes(hits), n_marks=len(marks), marks=marks_to_bytes(marks)))
         self._maybe_preview(message, image, hits)
 
     def _maybe_preview(self, message: Frame, image: np.ndarray, hits: np.ndarray) -> None:

@@ -1,0 +1,68 @@
+"""Colour marks as evidence: does a pose put the marks a frame saw where the court paints that colour?
+
+The scan reports pixels of the court's asymmetric colours (`courtloc.scan.marks`: robocon2025's red strip
+along +y, blue along -y); the package's floor table turns them into robot-frame floor points. A pose
+places them on the court: a mark on a texel painted its own colour counts for the pose, on another
+mark's colour against it, anywhere else nothing (a red robot, a blue ball, the mark beyond the modelled
+floor). The 180-degree twin of a pose puts every red mark on the blue strip, so a few frames that see a
+strip tell the twins apart. Acquisition (acquire.py) accumulates the counts per hypothesis.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from courtloc.world.court import Court
+
+# Coarse on purpose: the strips are a metre wide, and a mark's floor point is uncertain by tens of
+# centimetres far away; a 5 cm grid of a 19 x 13 m floor is 0.1 MB.
+MARK_MAP_RESOLUTION_M = 0.05
+
+
+@dataclass(frozen=True)
+class MarkPoints:
+    """A frame's colour marks on the floor, robot frame: (M, 2) metres and (M,) mark indices."""
+
+    points: np.ndarray
+    index: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+
+def mark_points(floor_table: np.ndarray, width: int, marks: np.ndarray) -> MarkPoints:
+    """Marks (int16 rows of (row, col, mark index)) -> their floor points through a package's (H * W, 2)
+    floor table; marks outside the image or above the horizon (no floor) are left out."""
+    rows, cols = marks[:, 0].astype(np.int64), marks[:, 1].astype(np.int64)
+    inside = (rows >= 0) & (cols >= 0) & (cols < width) & (rows * width + cols < floor_table.shape[0])
+    points = floor_table[rows[inside] * width + cols[inside]].astype(np.float64)
+    seen = np.all(np.isfinite(points), axis=1)
+    return MarkPoints(points[seen], marks[inside, 2][seen].astype(np.int64))
+
+
+class MarkMap:
+    """Which of the court's marks is painted where, on a top-down grid."""
+
+    def __init__(self, court: Court) -> None:
+        labels, texel_to_court = court.mark_map(MARK_MAP_RESOLUTION_M)
+        self.labels = labels
+        self.court_to_texel = np.linalg.inv(texel_to_court)
+        self.n_marks = len(court.marks)
+
+    def evidence(self, pose: np.ndarray, marks: MarkPoints) -> tuple[int, int]:
+        """(marks on their own colour, marks on another mark's colour) when the robot stands at `pose`."""
+        if len(marks) == 0:
+            return 0, 0
+        x, y, yaw = (float(v) for v in pose)
+        c, s = np.cos(yaw), np.sin(yaw)
+        px, py = marks.points[:, 0], marks.points[:, 1]
+        court_xy = np.stack([x + c * px - s * py, y + s * px + c * py, np.ones_like(px)])
+        col, row = np.rint(self.court_to_texel[:2] @ court_xy).astype(np.int64)
+        h, w = self.labels.shape
+        on_map = (row >= 0) & (row < h) & (col >= 0) & (col < w)
+        painted = np.zeros(len(marks), np.int64)
+        painted[on_map] = self.labels[row[on_map], col[on_map]]
+        own = painted == marks.index + 1
+        other = (painted > 0) & ~own
+        return int(np.count_nonzero(own)), int(np.count_nonzero(other))
