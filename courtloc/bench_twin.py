@@ -65,7 +65,7 @@ class BenchError(UsageError):
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--court", default="seed-gazebo", help="court name (sim/courts) or JSON path")
+    parser.add_argument("--court", default="seed-gazebo", help="court name (world/courts) or JSON path")
     parser.add_argument("--camera", default=None, help="camera name or JSON path (default: the court's own)")
     parser.add_argument("--scenario", default=",".join(SCENARIOS),
                         help=f"comma-separated scenarios (default all: {','.join(SCENARIOS)})")
