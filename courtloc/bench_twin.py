@@ -272,9 +272,11 @@ def deployment_for(sc, args: argparse.Namespace, port: int, store: Path,  # noqa
         infer={**base.get("infer", {}), "store": str(store), "start": start_config(sc, args.tell_start),
                **infer_fields},
     )
-    # What the deployment derives from its court and camera is derived again from the bench's.
+    # What the deployment derives from its court and camera is derived again from the bench's (the base
+    # file's court was seed-gazebo's by default: its empty colour marks must not stand for robocon2025's).
     for key in ("court", "camera"):
         base["infer"].pop(key, None)
+    base.get("preprocess", {}).pop("marks", None)
     shooter = base.get("shooter_bridge", {})
     if "target" in shooter:  # the shooter aims at the bench's court, not the file's
         shooter["target"].pop("court", None)

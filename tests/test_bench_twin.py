@@ -189,6 +189,8 @@ def test_the_infer_stage_is_told_the_scenarios_start(tmp_path: Path):
     assert told.infer.start is not None and (told.infer.start.x, told.infer.start.y) == (-3.0, 1.0)
     assert told.infer.start.yaw_deg == pytest.approx(math.degrees(-0.5))
     assert told.infer.court == "robocon2025" and told.camera.sim["court"] == "robocon2025"
+    # Derived from the bench's court, not the base file's (seed-gazebo by default, which has no colour marks).
+    assert [m.name for m in told.preprocess.marks] == ["red", "blue"]
     assert told.zenoh.connect == ["tcp/127.0.0.1:7999"] and told.router.listen == told.zenoh.connect
     assert told.infer.store == tmp_path / "store"
     half = config("half").infer.start
