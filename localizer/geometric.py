@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Union
+from typing import Callable, Union
 
 import numpy as np
 
@@ -119,14 +119,15 @@ class GeometricLocalizer:
         return self._finish(best, "global", None if hint is None else np.asarray(hint, np.float64))
 
     def track(self, hits: ProjectedHits, state: TrackState, t: float | None = None,
-              marks: MarkPoints | None = None) -> TrackStep:
+              marks: Callable[[], MarkPoints] | None = None) -> TrackStep:
         """One frame of a track at time t (seconds; None: frames `motion.frame_period_s` apart).
 
         With a track (`MotionState`): the fit starts from the state's prediction and is fused with it by
         covariance; a frame without a usable fit answers the prediction (invalid). The reset rules are
         motion.py's. Without one (None, or `acquire.Acquiring` carrying a prior): acquisition, whose
         frames are invalid until one hypothesis wins on evidence (acquire.py). A lost track becomes an
-        acquisition whose prior is its last pose. `marks`: the frame's colour marks on the floor (marks.py),
+        acquisition whose prior is its last pose. `marks`: gives the frame's colour marks on the floor (marks.py),
+        called only while acquiring (a tracked frame does not read them),
         evidence for acquisition on a court that has them.
         """
         if state is None:
@@ -182,7 +183,7 @@ class GeometricLocalizer:
 
     # ---- acquisition (acquire.py has the rule) ------------------------------------------------------
     def _acquire(self, hits: ProjectedHits, state: acquire.Acquiring, t: float | None,
-                 marks: MarkPoints | None = None) -> TrackStep:
+                 marks: Callable[[], MarkPoints] | None = None) -> TrackStep:
         cfg, acfg = self.config, self.config.acquire
         prior = None if state.prior is None else state.prior.at(t)
         live: list[tuple[LocalizeResult, acquire.Hypothesis]] = []
@@ -211,8 +212,9 @@ class GeometricLocalizer:
             limit = min(fitted) * acfg.tie_ratio + acfg.tie_abs
             live = [(res, h) for res, h in live if h.state.lost > 0 or res.fit.cost <= limit]
         live = live[:acfg.max_hypotheses]
-        if self.mark_map is not None and marks is not None and len(marks):
-            live = [(res, replace(h, marks=tuple(a + b for a, b in zip(h.marks, self.mark_map.evidence(h.pose, marks)))))
+        points = marks() if self.mark_map is not None and marks is not None else None
+        if points is not None and len(points):
+            live = [(res, replace(h, marks=tuple(a + b for a, b in zip(h.marks, self.mark_map.evidence(h.pose, points)))))
                     for res, h in live]
         hypotheses = tuple(h for _, h in live)
         if not live:

@@ -28,7 +28,7 @@ from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import kernel_active
 from courtloc.localizer.geometric import GeometricLocalizer, LocalizeResult
 from courtloc.localizer.manifest import MODEL_FILE, PAPER_KINDS, Manifest, ManifestError
-from courtloc.localizer.marks import mark_points
+from courtloc.localizer.marks import MarkPoints, mark_points
 from courtloc.localizer.model_file import ModelFile
 from courtloc.localizer.package import load_package
 from courtloc.localizer.paper_input import dense_input, hits_to_dense_input, hits_to_sparse_input, sparse_input
@@ -150,7 +150,8 @@ class GeometricPredictor:
         self._check_size(width, height)
         points = None
         if marks is not None and len(marks) and self.localizer.mark_map is not None:
-            points = mark_points(self.floor_table, self.width, np.asarray(marks))
+            def points() -> MarkPoints:  # on the floor only when acquisition asks (a tracked frame does not)
+                return mark_points(self.floor_table, self.width, np.asarray(marks))
         step = self.localizer.track(self.projected_hits(hits), state, t, points)
         return _prediction(step.result), step.state
 
