@@ -159,6 +159,17 @@ class LocalizerConfig(BaseModel):
     track_yaw_starts_rad: float = Field(0.15, ge=0, description="tracking also starts this far either side in yaw "
                                         "(0: one start)")
     track_max_jump_m: float = Field(0.5, gt=0, description="a tracked pose moving more than this is re-checked")
+    rival_probe_m: list[float] = Field(
+        default_factory=lambda: [0.6],
+        description="a valid tracked frame is also fitted from its pose moved this far either way along its weakest "
+        "direction ([]: never): a track that slid along a weakly pinned line keeps fitting the wrong place validly")
+    rival_cost_ratio: float = Field(0.5, gt=0, le=1, description="a probe fitting at most this fraction of the "
+                                    "tracked fit's cost elsewhere makes the track and the probe rival hypotheses")
+    rival_min_cost: float = Field(0.15, ge=0, description="... when the tracked fit costs more than this (below it the "
+                                  "fit is as good as the view allows and a ratio of two tiny costs is noise)")
+    rival_min_anisotropy: float = Field(3.0, ge=1, description="... and its position std along its weakest direction "
+                                        "is at least this many times the strongest's (a view pinned both ways has no "
+                                        "line to slide along; the probes cost as much as the frame's own fit)")
     fit: FitConfig = FitConfig()
     motion: MotionConfig = MotionConfig()
     quality: QualityConfig = QualityConfig()

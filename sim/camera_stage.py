@@ -9,7 +9,8 @@ launcher), `courtloc run camera` and the tests' buskit start it when the deploym
 from __future__ import annotations
 
 import sys
-from typing import Any, ClassVar, Mapping
+import time
+from typing import Any, Callable, ClassVar, Mapping
 
 import numpy as np
 from pydantic import ValidationError
@@ -37,13 +38,25 @@ class SimFrameSource:
     """The camera stage's source over the twin's (its own trajectory and renderer; with [camera.sim.mcu] also
     the robot's MCU on a pty): each frame with the true pose it shows and, with the MCU, the instant it shows."""
 
-    def __init__(self, config: CameraConfig) -> None:
+    def __init__(self, config: CameraConfig, clock: Callable[[], int] = time.monotonic_ns) -> None:
         self._sim = SimSource(sim_source_config(config))
+        self._fps = config.fps
+        self._clock = clock
+        self._t0_ns: int | None = None
 
     def open(self) -> None:
         self._sim.open()
+        self._t0_ns = None
 
     def read(self, out: np.ndarray | None = None) -> Capture:
+        # A real camera's frame shows the moment it was taken: a slot the stage missed (a slow render, a busy
+        # host) is time the robot kept moving through, not a pause of the world. Frame i used to show i/fps
+        # whatever the clock said, so after a missed slot the stamps ran 33 ms ahead of the motion shown and
+        # the tracker's filter saw the robot move at half its speed for a frame.
+        now = self._clock()
+        if self._t0_ns is None:
+            self._t0_ns = now
+        self._sim.frame_index = max(self._sim.frame_index, round((now - self._t0_ns) * self._fps / 1e9))
         frame, pose = self._sim.read()
         return Capture(frame, pose, self._sim.taken_mono_ns)
 

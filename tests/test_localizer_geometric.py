@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 
 from courtloc.lab.package_build import build_package
+from courtloc.localizer import acquire, motion
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import fit_pose
 from courtloc.localizer.geometric import GeometricLocalizer
 from courtloc.localizer.manifest import ManifestError
+from courtloc.localizer.package import bundled_package
 from courtloc.localizer.predictor import load_predictor
 from courtloc.localizer.projection import FloorProjector
 from courtloc.localizer.symmetry import by_previous, mirror
@@ -177,3 +179,44 @@ def test_real_seed_frames_within_target(seed_dir, twin):
     assert len(errs) >= 30
     assert np.median(errs) < 0.03, np.round(errs, 3)
     assert np.median(yaw_errs) < 0.4
+
+
+# One robocon2025 twin frame (randomised light, `courtloc bench twin --court robocon2025 --scenario randomised`,
+# frame 735): the centre line 2 m ahead and a few hits on the far three-point arc. The robot stood at TRUE; the
+# chain's track had slid 1 m along y to TRUE - (0, 1, 0) and fitted there validly, frame after frame.
+_SLID_VIEW_HITS = [
+    [331,621,13,336], [330,599,14,316], [328,580,15,301], [327,562,16,286], [325,547,17,274], [324,532,18,263],
+    [323,518,19,252], [322,506,20,243], [321,494,21,235], [320,484,22,228], [319,474,23,222], [318,464,24,216],
+    [318,454,25,209], [317,446,26,205], [316,438,27,201], [316,429,28,196], [315,422,29,193], [239,469,29,282],
+    [314,415,30,190], [314,407,31,186], [313,400,32,184], [313,393,33,181], [312,387,34,180], [312,380,35,177],
+    [311,374,36,176], [311,367,37,174], [244,387,37,244], [233,390,37,255], [310,362,38,174], [238,379,38,248],
+    [310,355,39,172], [309,349,40,172], [309,343,41,171], [308,337,42,171], [308,331,43,171], [237,336,43,242],
+    [307,326,44,172], [307,320,45,172], [307,313,46,172], [306,307,47,173], [244,303,47,235], [306,301,48,173],
+    [244,295,48,236], [236,294,48,244], [305,295,49,175], [305,289,50,176], [304,282,51,178], [243,269,51,241],
+    [304,276,52,180], [303,269,53,183], [303,262,54,185], [302,255,55,188], [241,233,55,253], [301,248,56,191],
+    [301,241,57,194], [239,213,57,262], [300,232,58,199], [237,202,58,269], [300,225,59,202], [299,216,60,207],
+    [298,207,61,213], [297,197,62,219], [296,187,63,225], [295,176,64,233], [295,166,65,239], [294,165,65,241],
+    [294,154,66,248], [293,140,67,258], [292,127,68,268], [290,111,69,281], [289,94,70,295], [287,74,71,311],
+    [286,55,72,327], [284,32,73,347], [282,6,74,370]
+]
+_SLID_VIEW_TRUE = (-2.1708, -2.3123, 0.3009)
+
+
+def test_a_track_slid_along_a_weak_direction_meets_its_rival_instead_of_answering_valid() -> None:
+    predictor = load_predictor(bundled_package("robocon2025", "robocon2025"))
+    localizer = predictor.localizer
+    hits = predictor.projected_hits(np.array(_SLID_VIEW_HITS, np.int16))
+    slid = np.array(_SLID_VIEW_TRUE) - (0.0, 1.0, 0.0)
+    state = motion.start(slid, np.diag([0.02, 0.02, 0.01]) ** 2, 0.0, localizer.config.motion)
+
+    step = localizer.track(hits, state, 1 / 30)
+    assert not step.result.valid and step.result.status == "ambiguous"
+    assert isinstance(step.state, acquire.Acquiring)
+    assert step.state.prior is not None and step.state.prior.source == "track"
+    nearest = min(math.hypot(*(h.pose[:2] - np.array(_SLID_VIEW_TRUE[:2]))) for h in step.state.hypotheses)
+    assert nearest < 0.1  # the rival is the true pose; the frames to come decide between the two
+
+    # Without the probe the same frame answers valid 1 m off: the rule is what stops it.
+    localizer.config = localizer.config.model_copy(update={"rival_probe_m": []})
+    plain = localizer.track(hits, state, 1 / 30)
+    assert plain.result.valid and math.hypot(*(plain.result.pose[:2] - slid[:2])) < 0.1

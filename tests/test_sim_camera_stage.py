@@ -47,3 +47,20 @@ def test_the_deployment_reads_the_twins_own_route_and_the_twin_its_table() -> No
     assert (twin.trajectory, twin.waypoints, twin.start) == (route.trajectory, route.waypoints, route.start)
     camera = CameraConfig(fps=12.0, sim={"court": "robocon2025", "seed": 4})
     assert sim_source_config(camera) == SimSourceConfig(court="robocon2025", seed=4, fps=12.0)
+
+
+def test_a_missed_slot_is_time_the_twin_robot_kept_moving_through() -> None:
+    """The twin's frame shows the slot it was read in: after a late read it shows the robot where it is by
+    then, as a real camera would, not the next frame of a world that waited for the renderer."""
+    period_ns = round(1e9 / 30.0)
+    reads = iter([5_000, 5_000 + period_ns, 5_000 + 3 * period_ns + 2_000_000, 5_000 + 3 * period_ns + 2_100_000])
+    camera = CameraConfig(fps=30.0, sim={"trajectory": "random_walk", "speed_mps": 2.0})
+    source = SimFrameSource(camera, clock=lambda: next(reads))
+    source.open()
+    try:
+        shown = [source.read().truth for _ in range(4)]
+        expected = [source._sim.pose_at_index(i) for i in (0, 1, 3, 4)]  # slot 2 was missed; a read never repeats
+    finally:
+        source.close()
+    for got, want in zip(shown, expected):
+        assert got == pytest.approx(tuple(float(v) for v in want))
