@@ -24,7 +24,9 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    it becomes a kidnap prior, the same place that wide with the heading unknown (an assumption: a robot
    pushed or carried lands within a few metres; on the twin's robocon2025 kidnaps it decided wrong
    hypotheses, hence off by default). A start or pit prior stays.
-   Without a prior, only a lone hypothesis is decided (never on a symmetric court). An unpinned
+   Without a prior, only a lone hypothesis is decided (never on a symmetric court). On a court with colour
+   marks a lone survivor the marks speak for (its twin ruled out), tracked `marks_motion_m` since first
+   seen, is decided whenever a pose prior does not decide itself (too vague, or explaining none). An unpinned
    hypothesis is never decided, and it competes with the others anywhere along its free direction (its
    covariance counts in d^2): a degenerate view of the truth beside a valid fit of a wrong place keeps
    both undecided, and usually the wrong one dies of the cost tie.
@@ -207,11 +209,13 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
     explained = True
     if prior is not None and prior.half is not None:
         keep = [i for i in keep if in_half(poses[i], prior.half, centre_margin_m)]
+    lone = len(keep) == 1 and hypotheses[keep[0]].pinned
+    marks_pick = _marks_decision(hypotheses, keep[0], cfg) if lone and court_marks else None
     if prior is not None and prior.pose is not None and keep:
         d2 = {i: hypothesis_distance2(prior, hypotheses[i], cfg) for i in keep}
         inside = [i for i in keep if d2[i] <= cfg.prior_gate_chi2]
         if not inside:
-            return Decision(None, explained=False)
+            return Decision(marks_pick, explained=False, kidnap=True)
         best = min(inside, key=d2.__getitem__)
         # The spread the decision rests on: the prior's, grown to the latest sighting compared with it.
         origin_t = max((s.t for s in hypotheses[best].sightings() if s.t is not None), default=None)
@@ -220,13 +224,20 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
         if hypotheses[best].pinned and d2[best] <= cfg.decide_chi2 and spread <= cfg.max_decide_std_m and all(
                 0.5 * (d2[i] - d2[best]) >= cfg.decide_log_ratio for i in keep if i != best):
             return Decision(best, explained, tight=spread <= cfg.tight_prior_m, kidnap=prior.source == "kidnap")
-        return Decision(None, explained)
-    lone = len(keep) == 1 and hypotheses[keep[0]].pinned
-    if lone and court_marks:
-        # The marks tell twins apart, not the near-ties of one side (both see the same strip); a view the
-        # search misread stays misread while the robot stands still, so it must have moved since.
-        h = hypotheses[keep[0]]
-        moved = math.hypot(*(h.pose[:2] - h.origin[:2])) >= cfg.marks_motion_m or \
-            _yaw_diff(h.pose[2], h.origin[2]) >= math.radians(cfg.marks_turn_deg)
-        return Decision(keep[0] if colour_verdict(h, cfg) == "for" and moved else None, explained, kidnap=True)
+        # A prior too vague (or too far) to decide does not stop the marks from deciding as they would
+        # without it: the robocon2025 twin kept a hypothesis 2-5 cm from the truth undecided for 2.5 s, its
+        # twin contradicted by 1392 marks, because the lost track's prior explained it at d^2 10.2, not 9.
+        return Decision(marks_pick, explained, kidnap=True)
+    if court_marks:
+        return Decision(marks_pick, explained, kidnap=True)
     return Decision(keep[0] if lone else None, explained)
+
+
+def _marks_decision(hypotheses: list[Hypothesis], index: int, cfg: AcquireConfig) -> int | None:
+    """The lone surviving hypothesis when the colour marks speak for it and it has moved since first seen:
+    the marks tell twins apart, not the near-ties of one side (both see the same strip), and a view the
+    search misread stays misread while the robot stands still. Confirmed like a kidnap prior's decision."""
+    h = hypotheses[index]
+    moved = math.hypot(*(h.pose[:2] - h.origin[:2])) >= cfg.marks_motion_m or \
+        _yaw_diff(h.pose[2], h.origin[2]) >= math.radians(cfg.marks_turn_deg)
+    return index if colour_verdict(h, cfg) == "for" and moved else None

@@ -201,3 +201,24 @@ def test_start_evidence_for_the_wrong_place_confirms_nothing(drive) -> None:  # 
     results = _run(loc, frames, acquire.Acquiring(prior=acquire.Prior("start", pose=np.array([1.0, -3.0, 2.0]),
                                                                       std_m=0.3, yaw_std_rad=0.2)))
     assert not any(r.valid for r in results)
+
+
+def test_a_prior_too_vague_to_decide_does_not_stop_the_marks() -> None:
+    """The robocon2025 twin (fast walk): after a lost track, a hypothesis 2-5 cm from the truth stayed undecided
+    for 2.5 s, its twin contradicted by over a thousand marks, because the lost track's prior explained it at
+    d^2 10.2 (inside the gate, outside 3 sigma). The marks decide then as they would without the prior."""
+    moved = replace(_hyp(POSE), origin=POSE - [CFG.marks_motion_m + 0.1, 0.0, 0.0], marks=(CFG.marks_min + 5, 0))
+    its_twin = replace(_hyp(mirror(POSE)), marks=(0, CFG.marks_min + 5))
+    distance = math.sqrt(10.2) * 0.5  # d^2 10.2 for a 0.5 m prior at the hypothesis's first sighting
+    vague = acquire.Prior("track", pose=moved.origin + [0.0, distance, 0.0], std_m=0.5, t=0.0)
+    assert CFG.decide_chi2 < acquire.hypothesis_distance2(vague, moved, CFG) <= CFG.prior_gate_chi2
+    assert acquire.decide([moved, its_twin], vague, None, 0.0, CFG, 0.3).index is None  # the prior alone: no
+    decision = acquire.decide([moved, its_twin], vague, None, 0.0, CFG, 0.3, court_marks=True)
+    assert decision.index == 0 and decision.kidnap  # confirmed like any decision of the marks
+    # A prior that explains neither (the robot was carried away) does not stop them either ...
+    elsewhere = acquire.Prior("track", pose=np.array([-5.0, 3.0, 0.0]), std_m=0.5, t=0.0)
+    decision = acquire.decide([moved, its_twin], elsewhere, None, 0.0, CFG, 0.3, court_marks=True)
+    assert decision.index == 0 and not decision.explained
+    # ... and the marks still decide nothing for a robot that stood still since the view was first fitted.
+    standing = replace(moved, origin=POSE)
+    assert acquire.decide([standing, its_twin], vague, None, 0.0, CFG, 0.3, court_marks=True).index is None
