@@ -46,6 +46,7 @@ class SimFrameSource:
 
     def open(self) -> None:
         self._sim.open()
+        self._sim.warm_up()  # before the clock starts: the first frames come at the camera's rate
         self._t0_ns = None
 
     def read(self, out: np.ndarray | None = None) -> Capture:

@@ -100,6 +100,13 @@ class SimSource:
         log.info("sim source: court %s, camera %s, %s trajectory at %.1f fps", court.name, camera.name, cfg.trajectory, cfg.fps)
         return self
 
+    def warm_up(self) -> None:
+        """Build the renderer's randomisation assets now, not on the frames that first draw them (a source read
+        in real time would miss slots there)."""
+        if self._renderer is None:
+            raise RuntimeError("SimSource is not open: call open() first")
+        self._renderer.warm_up(self.config.render)
+
     def close(self) -> None:
         if self._mcu is not None:
             self._mcu.stop()

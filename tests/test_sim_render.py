@@ -99,3 +99,16 @@ def test_bad_options_name_the_field():
 def test_camera_without_floor_is_refused_before_rendering():
     with pytest.raises(ValidationError, match="horizon"):
         CameraModel(fx=300, fy=300, cx=320, cy=240, mount={"height": 0.5, "pitch": -1.0})
+
+
+def test_warm_up_builds_every_asset_a_randomised_frame_can_draw() -> None:
+    """A camera rendering in real time warms up before its clock starts: afterwards no frame builds an asset
+    (each cost 50-250 ms on first use, so the first frames of a run missed slots)."""
+    renderer = Renderer(load_court("robocon2025"), load_camera("robocon2025"))
+    options = RenderOptions.randomised()
+    renderer.warm_up(options)
+    built = (len(renderer._variants), len(renderer._light_fields), len(renderer._noise_banks))
+    assert built[0] == options.floor_variants and built[1] > 0 and built[2] > 0
+    for index in range(60):
+        renderer.render((1.0, -2.0, 0.3 * index), options, np.random.default_rng([3, index]))
+    assert (len(renderer._variants), len(renderer._light_fields), len(renderer._noise_banks)) == built
