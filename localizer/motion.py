@@ -52,7 +52,8 @@ class MotionState:
         """Worst-direction position std of the state."""
         a, b, d = float(self.cov[0, 0]), float(self.cov[0, 1]), float(self.cov[1, 1])
         # The larger eigenvalue of the 2x2 block in closed form: read several times a frame, and numpy's
-        # eigvalsh (~20 us a call) was a seventh of the infer stage's time in a profile of the running chain.
+        # eigvalsh (7 us a call idle, more under load) was a seventh of the infer stage's time in a profile of the
+        # running chain.
         return math.sqrt(max(0.5 * (a + d) + math.hypot(0.5 * (a - d), b), 0.0))
 
 
