@@ -169,12 +169,10 @@ class GeometricLocalizer:
     def _split(self, state: motion.MotionState, step: TrackStep, rival: FitResult, t: float | None) -> TrackStep:
         """The track and a rival fit become acquisition hypotheses (as after a jump): the frame is invalid, the
         frames to come decide, the track's last pose the prior."""
-        mcfg = self.config.motion
         assert isinstance(step.state, motion.MotionState)
-        hypotheses = tuple(acquire.Hypothesis(s, s.pose.copy(), t) for s in (
-            step.state, motion.start(rival.pose, rival.covariance, t, mcfg)))
         answer = self._status(self._answer(step.result, step.result.pose, invalid=True), "ambiguous")
-        return TrackStep(answer, acquire.Acquiring(prior=self.lost_prior(state), hypotheses=hypotheses))
+        rival_state = motion.start(rival.pose, rival.covariance, t, self.config.motion)
+        return self._undecided(state, answer, (step.state, rival_state), t)
 
     def _after_jump(self, state: motion.MotionState, step: TrackStep, t: float | None) -> TrackStep:
         """A valid fit the track cannot explain: the robot was moved, or the fit snapped to a parallel line
@@ -184,8 +182,14 @@ class GeometricLocalizer:
         last pose the prior (step 8), and the frames to come decide (the one that stops fitting dies)."""
         mcfg = self.config.motion
         kept = motion.coast(motion.predict(state, t, mcfg), mcfg)
-        hypotheses = tuple(acquire.Hypothesis(s, s.pose.copy(), t) for s in (kept, step.state))
-        return TrackStep(step.result, acquire.Acquiring(prior=self.lost_prior(state), hypotheses=hypotheses))
+        return self._undecided(state, step.result, (kept, step.state), t)
+
+    def _undecided(self, track: motion.MotionState, answer: LocalizeResult,
+                   candidates: tuple[motion.MotionState, ...], t: float | None) -> TrackStep:
+        """`answer` for this frame, and an acquisition between `candidates`, first seen now, with the track's
+        last pose as the prior."""
+        hypotheses = tuple(acquire.Hypothesis(s, s.pose.copy(), t) for s in candidates)
+        return TrackStep(answer, acquire.Acquiring(prior=self.lost_prior(track), hypotheses=hypotheses))
 
     def lost_prior(self, state: motion.MotionState) -> acquire.Prior:
         """A lost track's last pose as the prior of the acquisition after it."""

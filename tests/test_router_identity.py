@@ -33,8 +33,12 @@ def _stage(config: Path, expect_router: str) -> Proc:
                            expect_router=expect_router)).start()
 
 
-def _foreign_line(theirs: str, ours: str) -> str:
-    return f"connected to router {theirs}, not {ours}"
+def _wait_until_it_leaves(stage: Proc, theirs: str, ours: str) -> int:
+    """The stage's exit code, once it has exited and said which router it found instead of ours."""
+    assert stage.process is not None
+    code = stage.process.wait(timeout=60)
+    stage.wait_line(f"connected to router {theirs}, not {ours}")
+    return code
 
 
 @pytest.mark.integration
@@ -48,9 +52,7 @@ def test_a_stage_expecting_another_router_exits_with_one_line_and_never_joins(tm
         all_liveliness_key("robot1"), lambda sample: seen.append(str(sample.key_expr)), history=True)
     stage = _stage(write_config(tmp_path / "deploy.toml", port), ours)
     try:
-        assert stage.process is not None
-        code = stage.process.wait(timeout=60)
-        stage.wait_line(_foreign_line(theirs, ours))
+        code = _wait_until_it_leaves(stage, theirs, ours)
     finally:
         stage.kill()
         watcher.undeclare()
@@ -80,9 +82,7 @@ def test_a_stage_on_its_own_router_runs_and_leaves_the_one_that_took_the_port(tm
         client.close()
         router.kill()  # SIGKILL: no goodbye, as a crash
         foreign = _router(port, theirs)
-        assert stage.process is not None
-        code = stage.process.wait(timeout=60)
-        stage.wait_line(_foreign_line(theirs, ours))
+        code = _wait_until_it_leaves(stage, theirs, ours)
     finally:
         stage.kill()
         router.kill()
