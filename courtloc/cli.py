@@ -7,27 +7,36 @@ import os
 import struct
 import sys
 import traceback
-from types import ModuleType
+from importlib import import_module
 from typing import NoReturn, Sequence
 
 from pydantic import ValidationError
 
-from courtloc import bench, doctor, export_cli, model_cli, pose_cli, preprocess_cli, shooter_cli, stage_cli, up_cli
 from courtloc.cli_errors import RUN_EXIT, USAGE_EXIT, UsageError
-from courtloc.foxglove import cli as foxglove_cli
-from courtloc.lab import eval_cli, localizer_cli
-from courtloc.monitor import cli as monitor_cli
-from courtloc.recording import cli as recording_cli
-from courtloc.ros import cli as ros_cli
-from courtloc.security import cli as security_cli
-from courtloc.sim import cli as sim_cli
-from courtloc.training import cli as training_cli
 
-# Each module here exposes `register(subparsers)`, adding its sub-command(s) with `set_defaults(func=...)`.
-COMMAND_MODULES: tuple[ModuleType, ...] = (
-    bench, sim_cli, shooter_cli, stage_cli, up_cli, model_cli, pose_cli, training_cli, eval_cli, localizer_cli,
-    preprocess_cli, security_cli, recording_cli, monitor_cli, export_cli, ros_cli, foxglove_cli, doctor,
-)
+# Command -> the module that registers it: each exposes `register(subparsers)`, adding its sub-command(s)
+# with `set_defaults(func=...)`. Only the module of the command given is imported: importing all of them
+# costs ~2.5 s (scipy, cv2, every stage's config) before `courtloc pose set` can answer, ~0.6-1 s for one.
+COMMAND_MODULES: dict[str, str] = {
+    "bench": "courtloc.bench",
+    "calibrate": "courtloc.sim.cli", "dataset": "courtloc.sim.cli",
+    "shooter": "courtloc.shooter_cli",
+    "run": "courtloc.stage_cli", "router": "courtloc.stage_cli",
+    "up": "courtloc.up_cli",
+    "model": "courtloc.model_cli",
+    "pose": "courtloc.pose_cli",
+    "train": "courtloc.training.cli", "explain": "courtloc.training.cli",
+    "eval": "courtloc.lab.eval_cli", "duplicates": "courtloc.lab.eval_cli",
+    "localizer": "courtloc.lab.localizer_cli",
+    "preprocess": "courtloc.preprocess_cli",
+    "secure": "courtloc.security.cli",
+    "record": "courtloc.recording.cli", "replay": "courtloc.recording.cli",
+    "monitor": "courtloc.monitor.cli",
+    "export": "courtloc.export_cli",
+    "ros": "courtloc.ros.cli",
+    "foxglove": "courtloc.foxglove.cli",
+    "doctor": "courtloc.doctor",
+}
 
 EPILOG = """\
 conventions of every command:
@@ -49,16 +58,29 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(USAGE_EXIT, f"{self.prog}: {message} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The parser for `argv` (None: every command): with a known command in it, only that command's module
+    is imported and registered; otherwise (help, a typo) all of them, so help and errors list every command."""
     parser = OneLineParser(prog="courtloc", description=__doc__, epilog=EPILOG,
                            formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-v", "--verbose", action="count", default=0,
                         help="more log output (-vv for debug); a mistake's traceback")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for module in COMMAND_MODULES:
-        module.register(sub)
+    named = _command_of(argv)
+    modules = [COMMAND_MODULES[named]] if named in COMMAND_MODULES else list(dict.fromkeys(COMMAND_MODULES.values()))
+    for module in modules:
+        import_module(module).register(sub)
     _name_commands(parser)
     return parser
+
+
+def _command_of(argv: Sequence[str] | None) -> str | None:
+    """The command word of a command line: its first word that is not the top-level -v option."""
+    for word in argv or ():
+        if word in ("-v", "-vv", "--verbose"):
+            continue
+        return None if word.startswith("-") else word
+    return None
 
 
 def _name_commands(parser: argparse.ArgumentParser) -> None:
@@ -115,8 +137,9 @@ def _one_line(text: str) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    words = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(words)
+    args = parser.parse_args(words)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     if not getattr(args, "func", None):

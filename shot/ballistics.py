@@ -17,7 +17,6 @@ from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
-from scipy.optimize import brentq, minimize_scalar
 
 G = 9.81
 _STEPS_PER_M = 10  # RK4 steps per metre of flight: height error ~1e-8 m against a 40-per-metre run
@@ -98,6 +97,8 @@ def solve(distance_m: float, model: ShotModel) -> ShotSolve:
             high *= 1.25
             if high > 100.0:
                 raise UnreachableShot(f"drag {model.drag_per_m}/m: no speed below 100 m/s reaches {distance_m:.2f} m")
+        from scipy.optimize import brentq  # scipy costs ~0.8 s to import: only a solve pays it, not every config reader
+
         speed = brentq(miss, low, high, xtol=1e-9, rtol=1e-12)
     _, vx, vz, t = fly_to(distance_m, speed, model)
     if vz >= 0.0:
@@ -145,6 +146,8 @@ def fit(distances_m: Sequence[float], rpms: Sequence[float], base: ShotModel, fi
         return 1.0 / scale, y - scale * per_speed
 
     if fit_drag:
+        from scipy.optimize import minimize_scalar  # see solve(): imported where used
+
         result = minimize_scalar(lambda k: float(np.sqrt(np.mean(best_slip(k)[1] ** 2))),
                                  bounds=(0.0, max_drag_per_m), method="bounded", options={"xatol": 1e-5})
         drag = float(result.x)

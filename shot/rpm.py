@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Callable, Optional, Protocol, Sequence
 
 import numpy as np
-from scipy.interpolate import PchipInterpolator
 
 from courtloc.shot import ballistics
 
@@ -60,6 +59,8 @@ class RpmTable:
         self.distances_m = d
         self.rpms = r
         self.source = source
+        from scipy.interpolate import PchipInterpolator  # see ballistics.solve(): imported where used
+
         self._curve = PchipInterpolator(d, r, extrapolate=False)
 
     @property

@@ -31,6 +31,9 @@ OFF_ROBOT = ("sim", "lab", "training")  # what the robot side never imports: not
 ALLOWED_LAZY_EXTERNAL = {
     ("courtloc.doctor", "cv2"): "the doctor reports a broken OpenCV install instead of dying with it",
     ("courtloc.doctor", "onnxruntime"): "the doctor reports a broken onnxruntime install instead of dying with it",
+    # scipy costs ~0.8 s to import; every process that reads a deployment imports the shooter's config
+    ("courtloc.shot.ballistics", "scipy.optimize"): "only solving a shot or fitting drag needs it",
+    ("courtloc.shot.rpm", "scipy.interpolate"): "only a measured RPM table needs it",
 }
 
 
