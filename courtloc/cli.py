@@ -77,7 +77,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 def _command_of(argv: Sequence[str] | None) -> str | None:
     """The command word of a command line: its first word that is not the top-level -v option."""
     for word in argv or ():
-        if word in ("-v", "-vv", "--verbose"):
+        if word == "--verbose" or (len(word) > 1 and word[0] == "-" and set(word[1:]) == {"v"}):  # -v, -vv, ...
             continue
         return None if word.startswith("-") else word
     return None

@@ -18,6 +18,7 @@ def test_the_table_names_every_command_and_each_one_is_registered_by_its_module(
     for name in COMMAND_MODULES:
         assert name in _commands(build_parser([name])), name
         assert name in _commands(build_parser(["-v", name])), name
+        assert _commands(build_parser(["-vvv", name])) == _commands(build_parser([name])), name  # not all of them
 
 
 def test_a_command_imports_its_own_module_only() -> None:

@@ -178,7 +178,7 @@ class InferService(Service):
         # limit, as in `courtloc eval`): skipped, the track was found lost only by the time gap at the next
         # frame with hits, its prior as old as the blind spell (a 2 s blackout left it at exactly the spread that
         # decides nothing, and the twin's robot waited 25 s where the replay of the same frames recovered).
-        if len(hits) == 0 and fusion is None and not isinstance(model.predictor, GeometricPredictor):
+        if len(hits) == 0 and not isinstance(model.predictor, GeometricPredictor):
             reason = "no_hits"
         else:
             # Capture times on the camera's monotonic clock: the filter predicts over the real interval.
