@@ -118,6 +118,32 @@ class GeometricLocalizer:
             best = fit_pose(self.field, hits, np.zeros(3), cfg.fit, cfg.quality)
         return self._finish(best, "global", None if hint is None else np.asarray(hint, np.float64))
 
+    def explained_fraction(self, hits: ProjectedHits, pose: np.ndarray, pose_cov: np.ndarray) -> float:
+        """Share of the hits that lie on a paint edge with the robot at `pose` as it is (no fit): within three
+        standard deviations of what `pose_cov` ((x, y, yaw) covariance) and the hit's pixel noise allow across
+        the nearest edge (the fit's error model: along-view error counts only as far as the edge faces it).
+
+        Few hits cannot be fitted, but they can still contradict a pose: lines seen where the pose has none."""
+        if len(hits) == 0:
+            return 1.0
+        x, y, yaw = (float(v) for v in pose[:3])
+        rot = complex(math.cos(yaw), math.sin(yaw))
+        lever = hits.cpoints * rot
+        court = lever + complex(x, y)
+        distance, gx, gy = self.field.lookup(court.real, court.imag)
+        norm = np.hypot(gx, gy) + 1e-12
+        nx, ny = gx / norm, gy / norm
+        # The edge normal's sensitivity to the pose (x, y, yaw) and the covariance it gives across the edge.
+        jac = np.stack([nx, ny, ny * lever.real - nx * lever.imag])
+        pose_var = np.einsum("in,ij,jn->n", jac, np.asarray(pose_cov, np.float64)[:3, :3], jac)
+        view = hits.cview * rot
+        along = nx * view.real + ny * view.imag
+        across = ny * view.real - nx * view.imag
+        pixel = self.config.fit.pixel_sigma
+        var = (np.maximum(pose_var, 0.0) + (along * hits.sigma[:, 0] * pixel) ** 2
+               + (across * hits.sigma[:, 1] * pixel) ** 2 + self.config.fit.floor_sigma_m ** 2)
+        return float(np.mean(np.abs(distance) <= 3.0 * np.sqrt(var)))
+
     def track(self, hits: ProjectedHits, state: TrackState, t: float | None = None,
               marks: Callable[[], MarkPoints] | None = None) -> TrackStep:
         """One frame of a track at time t (seconds; None: frames `motion.frame_period_s` apart).

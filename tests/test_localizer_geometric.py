@@ -220,3 +220,27 @@ def test_a_track_slid_along_a_weak_direction_meets_its_rival_instead_of_answerin
     localizer.config = localizer.config.model_copy(update={"rival_probe_m": []})
     plain = localizer.track(hits, state, 1 / 30)
     assert plain.result.valid and math.hypot(*(plain.result.pose[:2] - slid[:2])) < 0.1
+
+
+def test_few_hits_explained_at_the_true_pose_contradict_a_pose_metres_away(twin, twin_hits):
+    """`explained_fraction`: the share of a frame's hits on paint at a given pose, unfitted. A handful of
+    hits (too few to fit) still tells the pose they were seen from from most poses 3.5 m away (the seed court's
+    parallel lines explain up to about half of them along some directions)."""
+    court, camera, loc = twin
+    projector = FloorProjector(camera, loc.config.edge_offset_px, loc.config.max_range_m)
+    tight = np.diag([0.01 ** 2, 0.01 ** 2, math.radians(0.2) ** 2])
+    odometry_like = np.diag([0.05 ** 2, 0.05 ** 2, math.radians(1.0) ** 2])
+    for pose in POSES:
+        hits = twin_hits[pose]
+        few = hits[np.linspace(0, len(hits) - 1, 16).astype(int)]  # 16 hits spread over the frame
+        projected = projector.project(few[:, 0], few[:, 1])
+        true = np.array(pose)
+        assert loc.explained_fraction(projected, true, tight) >= 0.9, pose
+        moved = [loc.explained_fraction(projected, true + (3.5 * math.cos(a), 3.5 * math.sin(a), 0.0), odometry_like)
+                 for a in np.arange(12) * math.pi / 6]
+        assert np.median(moved) < 0.5 and max(moved) < 0.9, (pose, moved)
+        # The tolerance is the pose's own: 0.25 m off is explained in full only when its covariance allows it.
+        near = true + (0.25, 0.0, 0.0)
+        wide = np.diag([0.12 ** 2, 0.12 ** 2, math.radians(0.5) ** 2])
+        assert loc.explained_fraction(projected, near, tight) < 0.9 <= loc.explained_fraction(projected, near, wide)
+    assert loc.explained_fraction(projector.project(np.zeros(0), np.zeros(0)), np.zeros(3), tight) == 1.0

@@ -193,3 +193,64 @@ def test_unflagged_slip_is_cut_to_what_the_robot_can_accelerate() -> None:
     # margin on top: sum over k = 1..15 of min(0.4, 0.1 + 0.03 k) * 0.01 s = 0.0465 m of the 0.06 m get through.
     assert delta is not None and delta.dx == pytest.approx(0.59 + 0.0465, abs=1e-9)
     assert fusion.counts["slip_limited"] == 9  # until the reference has risen to within the margin of 1.4
+
+
+def test_a_frame_of_few_hits_the_prediction_contradicts_is_not_bridged() -> None:
+    """Fewer hits than `min_hits_in_view` are a blind frame the odometry may bridge, but not when the hits
+    speak against the predicted pose (less than `min_explained` of them on paint there: the robot was moved),
+    and not when the hits are too few to say anything (`min_hits_to_contradict`)."""
+    fusion = OdometryFusion(FusionConfig(enabled=True))
+    for i in range(40):  # driving straight along +x at 1 m/s, 100 Hz
+        fusion.offer(odometry(i * 0.01, i * 0.01, seq=i), i * 0.01)
+    state = motion.MotionState(mean=np.zeros(6), cov=np.eye(6) * 1e-4, t=0.1)
+    assert fusion.after_frame(True, True, state, 0.1, n_hits=60) == (True, "")  # a vision fix
+    predicted = fusion.before_frame(state, 0.2)
+    assert predicted is not None and predicted.t == 0.2
+    assert not fusion.contradicts(14, explained=0.5) and not fusion.contradicts(7, explained=0.0)
+    assert fusion.contradicts(14, explained=0.49)
+    assert fusion.after_frame(False, False, predicted, 0.2, 14, contradicted=False) == (True, "")
+    assert fusion.after_frame(False, False, predicted, 0.2, 14, contradicted=True) == (False, "odometry_unconfirmed")
+    assert fusion.counts["contradicted"] == 1 and fusion.counts["valid_on_odometry"] == 1
+
+
+@pytest.fixture(scope="module")
+def robocon2025_twin():  # noqa: ANN201
+    from courtloc.localizer.package import bundled_package
+    from courtloc.localizer.predictor import load_predictor
+    from courtloc.sim.render import Renderer
+    from courtloc.world.camera import load_camera
+    from courtloc.world.court import load_court
+
+    predictor = load_predictor(bundled_package("robocon2025", "robocon2025"))
+    return predictor, Renderer(load_court("robocon2025"), load_camera("robocon2025"))
+
+
+@pytest.mark.parametrize("pose", [(3.0, 1.0, 0.0), (4.0, -1.5, 0.5), (-3.0, 1.0, 3.0)])
+def test_a_robot_moved_into_a_view_of_few_hits_is_not_valid_on_odometry(robocon2025_twin, pose) -> None:
+    """The defect the robocon2025 twin's kidnap bench showed: the robot teleported 3.5 m into a view of fewer
+    hits than `min_hits_in_view` was 'blind', so the frames were valid on odometry at the old place. The same
+    16 hits seen from where the odometry says the robot is are fine (a fix); seen 3.5 m away they are not."""
+    from courtloc.localizer.odometry_fusion import fused_track
+    from courtloc.sim.edges import scan_hits
+
+    predictor, renderer = robocon2025_twin
+    tracked = np.array(pose)
+
+    def frame_from(where: np.ndarray, config: FusionConfig):  # noqa: ANN202
+        hits = scan_hits(renderer.render(tuple(where)))
+        few = hits[np.linspace(0, len(hits) - 1, 16).astype(int)]
+        fusion = OdometryFusion(config)
+        for i in range(30):  # standing still: the odometry predicts the tracked pose
+            fusion.offer(odometry(i * 0.01, 0.0, seq=i), i * 0.01)
+        state = motion.start(tracked, np.diag([1e-4, 1e-4, 1e-5]), 0.1, predictor.localizer.config.motion)
+        fusion.last_fix = (0.1, tracked)
+        return fused_track(predictor, fusion, few, 640, 480, state, 0.2), fusion
+
+    (seen, _, _), _ = frame_from(tracked, FusionConfig(enabled=True))
+    assert seen.valid and math.hypot(seen.x - pose[0], seen.y - pose[1]) < 0.05
+    for moved in (tracked + (0.0, -3.5, 0.0), tracked + (-3.5, 0.0, 0.0)):
+        (answer, _, reason), fusion = frame_from(moved, FusionConfig(enabled=True))
+        assert not answer.valid and reason == "odometry_unconfirmed" and fusion.counts["contradicted"] == 1
+        # Without the rule (nothing contradicts) the frame was bridged as blind: valid 3.5 m off.
+        (bridged, _, _), _ = frame_from(moved, FusionConfig(enabled=True, min_explained=0.0))
+        assert bridged.valid and math.hypot(bridged.x - moved[0], bridged.y - moved[1]) > 3.0
