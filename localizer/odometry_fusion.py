@@ -18,7 +18,9 @@ at the frame's time). Vision fixes then correct it exactly as before (gate, fuse
   second) and the wheel scale (distance by vision over distance by odometry); both are learnt by a
   scalar Kalman filter and bounded (`max_gyro_bias_rad_s`, `scale_bounds`). Slip the source does not
   flag is bounded by physics: a wheel speed rising faster than `max_accel_m_s2` (+ `speed_margin_m_s`)
-  allows is cut to that, the window's step shortened accordingly (`fusion.slip_limited`).
+  allows is cut to that, the window's step shortened accordingly (`fusion.slip_limited`). What was cut
+  may have been real motion (a robot that did accelerate, or the twin's instant reversals at its
+  waypoints), so the distance cut between two frames enters the prediction's covariance along the step.
 - **Bad odometry** is rejected with a counted reason before it reaches the buffer: not finite,
   invalid, from another host's clock, from the future or too old, a stalled source clock, a jump (more
   speed or turn rate than a robot has). A saturated gyro or a slip flag down-weights.
@@ -93,16 +95,20 @@ class _Sample:
     slip: bool
     source_ns: int
     seq: int
+    cut: tuple[float, float] = (0.0, 0.0)  # motion the slip limit has removed in this epoch so far (cumulative)
 
 
 @dataclass(frozen=True)
 class OdometryDelta:
-    """Motion between two times in the robot frame at the first: forward, left (m), turn (rad)."""
+    """Motion between two times in the robot frame at the first: forward, left (m), turn (rad); the slip limit
+    removed (cut_dx, cut_dy) of the wheels' motion in between (in the same frame; it may have been real)."""
 
     dx: float
     dy: float
     dyaw: float
     slip: bool
+    cut_dx: float = 0.0
+    cut_dy: float = 0.0
 
 
 class OdometryBuffer:
@@ -122,8 +128,9 @@ class OdometryBuffer:
     def clear(self) -> None:
         self.samples.clear()
 
-    def pose_at(self, t: float, max_extrapolate_s: float) -> Optional[tuple[np.ndarray, bool]]:
-        """The epoch's dead-reckoned pose at t (interpolated; extrapolated a little past the newest)."""
+    def pose_at(self, t: float, max_extrapolate_s: float) -> Optional[tuple[np.ndarray, bool, np.ndarray]]:
+        """The epoch's dead-reckoned pose at t (interpolated; extrapolated a little past the newest), whether
+        it slipped there, and the motion cut by the slip limit up to t (epoch frame)."""
         s = self.samples
         if len(s) < 2 or t < s[0].t:
             return None
@@ -145,18 +152,20 @@ class OdometryBuffer:
         pa, pb = np.array(a.pose), np.array(b.pose)
         step = pb - pa
         step[2] = wrap_angle(step[2])
-        return pa + w * step, a.slip or b.slip
+        ca, cb = np.array(a.cut), np.array(b.cut)
+        return pa + w * step, a.slip or b.slip, ca + min(w, 1.0) * (cb - ca)
 
     def delta(self, t0: float, t1: float, max_extrapolate_s: float) -> Optional[OdometryDelta]:
         p0 = self.pose_at(t0, max_extrapolate_s)
         p1 = self.pose_at(t1, max_extrapolate_s)
         if p0 is None or p1 is None:
             return None
-        (a, slip0), (b, slip1) = p0, p1
+        (a, slip0, cut0), (b, slip1, cut1) = p0, p1
         c, s = math.cos(a[2]), math.sin(a[2])
         d = b[:2] - a[:2]
+        k = cut1 - cut0
         return OdometryDelta(dx=c * d[0] + s * d[1], dy=-s * d[0] + c * d[1], dyaw=wrap_angle(b[2] - a[2]),
-                             slip=slip0 or slip1)
+                             slip=slip0 or slip1, cut_dx=c * k[0] + s * k[1], cut_dy=-s * k[0] + c * k[1])
 
 
 @dataclass
@@ -238,8 +247,9 @@ class OdometryFusion:
             self.counts["slip_limited"] += 1
         step_x, step_y = raw.pose[0] - last.pose[0], raw.pose[1] - last.pose[1]
         pose = (corrected.pose[0] + factor * step_x, corrected.pose[1] + factor * step_y, raw.pose[2])
+        cut = (corrected.cut[0] + (1.0 - factor) * step_x, corrected.cut[1] + (1.0 - factor) * step_y)
         self._corrected = _Sample(t=raw.t, epoch=raw.epoch, pose=pose, slip=raw.slip or factor < 1.0,
-                                  source_ns=raw.source_ns, seq=raw.seq)
+                                  source_ns=raw.source_ns, seq=raw.seq, cut=cut)
         return self._corrected
 
     def _check(self, m: Odometry, now_s: float) -> str:
@@ -317,6 +327,9 @@ class OdometryFusion:
         q[:2, :2] = rot @ np.diag([pos_sd ** 2, pos_sd ** 2]) @ rot.T
         step_world = np.array([mean[0] - x, mean[1] - y])
         q[:2, :2] += np.outer(step_world, step_world) * (self.scale.var / max(scale * scale, 1e-9))
+        # What the slip limit cut may have been real motion: the error it may have made, along itself.
+        cut_world = rot @ np.array([delta.cut_dx, delta.cut_dy]) * scale
+        q[:2, :2] += np.outer(cut_world, cut_world)
         q[2, 2] = yaw_sd ** 2 + self.bias.var * dt * dt
         cov = state.cov.copy()
         cov[:3, :3] = f @ state.cov[:3, :3] @ f.T + q

@@ -254,3 +254,28 @@ def test_a_robot_moved_into_a_view_of_few_hits_is_not_valid_on_odometry(robocon2
         # Without the rule (nothing contradicts) the frame was bridged as blind: valid 3.5 m off.
         (bridged, _, _), _ = frame_from(moved, FusionConfig(enabled=True, min_explained=0.0))
         assert bridged.valid and math.hypot(bridged.x - moved[0], bridged.y - moved[1]) > 3.0
+
+
+def test_what_the_slip_limit_cuts_widens_the_prediction_along_the_step() -> None:
+    """A wheel speed that jumps from 0 to 1.5 m/s is cut by the slip limit; the cut may have been real motion
+    (the twin's random walk reverses at its waypoints in one frame: the seed twin then carried a track 12 cm
+    off along a degenerate view's free direction with a 3.5 cm std), so the covariance grows by it."""
+    fusion = OdometryFusion(FusionConfig(enabled=True))
+    x = 0.0
+    for i in range(80):  # 0.1 s standing, then 1.5 m/s along +x at once
+        t = i * 0.01
+        speed = 0.0 if t < 0.1 else 1.5
+        x += speed * 0.01
+        assert fusion.offer(odometry(t, x, seq=i, vx_m_s=speed), t)
+    delta = fusion.buffer.delta(0.05, 0.79, 0.0)
+    assert delta is not None
+    # What the wheels read minus what the buffer kept is exactly what was cut, along the step.
+    assert delta.cut_dx == pytest.approx(x - delta.dx, abs=1e-9) and delta.cut_dx > 0.1
+    assert delta.cut_dy == pytest.approx(0.0, abs=1e-12)
+    state = motion.MotionState(mean=np.zeros(6), cov=np.eye(6) * 1e-6, t=0.05)
+    fusion.last_fix = (0.05, state.pose)
+    ahead = fusion.before_frame(state, 0.79)
+    assert ahead.cov[0, 0] >= delta.cut_dx ** 2  # along the step: at least the cut
+    assert ahead.cov[1, 1] < 1e-3  # across it: the wheels' own noise only
+    steady = fusion.buffer.delta(0.65, 0.79, 0.0)  # once the reference has caught up nothing more is cut
+    assert steady is not None and steady.cut_dx == pytest.approx(0.0, abs=1e-9)
