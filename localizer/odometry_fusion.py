@@ -335,8 +335,13 @@ class OdometryFusion:
         cov[:3, :3] = f @ state.cov[:3, :3] @ f.T + q
         cov[:3, 3:] = 0.0  # the velocity slots only carry the odometry's velocity for display
         cov[3:, :3] = 0.0
-        within = self.last_fix is not None and t - self.last_fix[0] <= cfg.horizon_s
-        return motion.MotionState(mean=mean, cov=cov, t=t, lost=0 if within else state.lost)
+        # Odometry keeps the track through frames without a fit (blind, or too few lines) for as long as its
+        # covariance stays below the motion filter's `max_track_std_m` (then the track is lost and acquisition
+        # starts from it): validity is `after_frame`'s, and a view that disagrees ends it (the kidnap rule).
+        # Until the seed twin's 4.5 s camera outage this ended at `horizon_s`: the lost track's prior had then
+        # grown past deciding, and the run stayed ambiguous after the outage.
+        carried = self.last_fix is not None and not self.suspect
+        return motion.MotionState(mean=mean, cov=cov, t=t, lost=0 if carried else state.lost)
 
     def search_next(self, state: motion.MotionState, cfg: motion.MotionConfig) -> motion.MotionState:
         """The state marked lost, so the tracker searches the whole court next frame (the odometry prior

@@ -165,6 +165,24 @@ def test_no_pose_is_valid_on_odometry_alone_beyond_the_horizon() -> None:
     assert result["fused"]["fusion"]["fusion.beyond_horizon"] > 0
 
 
+def test_odometry_carries_the_track_through_an_outage_longer_than_the_horizon() -> None:
+    """A 4 s blackout (horizon 2.5 s): valid on odometry until the horizon, invalid after it, but the track
+    itself is carried on by odometry (its answer stays where the robot is), so the first frame with lines is
+    fused into it at once instead of an acquisition starting from a prior grown at walking speed (the seed
+    twin's 4.5 s camera outage: never valid again in that run)."""
+    from courtloc.sim.fusion_bench import run_scenario
+
+    result = run_scenario("blackout", duration=7.5, blackout_at=2.0, blackout_s=4.0, detail=True)
+    rows = result["fused"]["rows"]
+    last_fix = max(t for t, blind, valid, _ in rows if not blind and t < 2.0 and valid)
+    assert not any(valid for t, blind, valid, _ in rows if blind and t - last_fix > 2.5)
+    assert result["fused"]["fusion"]["fusion.beyond_horizon"] > 0
+    # Carried, not coasting: 6 m driven blind, the answer (invalid past the horizon) stays within 15 cm.
+    assert max(err for _, blind, _, err in rows if blind) <= 0.15
+    after = [(t, valid, err) for t, blind, valid, err in rows if not blind and t >= 6.0]
+    assert after[0][1] and after[0][2] <= 0.05  # the first frame with lines is valid, and right
+
+
 def test_a_kidnap_is_noticed_and_never_reported_valid_while_wrong() -> None:
     from courtloc.sim.fusion_bench import run_scenario
 
