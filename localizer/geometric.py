@@ -120,8 +120,10 @@ class GeometricLocalizer:
 
     def explained_fraction(self, hits: ProjectedHits, pose: np.ndarray, pose_cov: np.ndarray) -> float:
         """Share of the hits that lie on a paint edge with the robot at `pose` as it is (no fit): within three
-        standard deviations of what `pose_cov` ((x, y, yaw) covariance) and the hit's pixel noise allow across
-        the nearest edge (the fit's error model: along-view error counts only as far as the edge faces it).
+        standard deviations across the nearest edge of `pose_cov` ((x, y, yaw) covariance) through the hit's
+        lever arm, its pixel noise split along / across the view as the fit splits it, and `floor_sigma_m`.
+        The fit's `range_sigma` term is left out on purpose: it would excuse far hits by tens of centimetres,
+        and a few far hits are what a view from the wrong place often shows.
 
         Few hits cannot be fitted, but they can still contradict a pose: lines seen where the pose has none."""
         if len(hits) == 0:

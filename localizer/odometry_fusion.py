@@ -20,7 +20,7 @@ at the frame's time). Vision fixes then correct it exactly as before (gate, fuse
   flag is bounded by physics: a wheel speed rising faster than `max_accel_m_s2` (+ `speed_margin_m_s`)
   allows is cut to that, the window's step shortened accordingly (`fusion.slip_limited`). What was cut
   may have been real motion (a robot that did accelerate, or the twin's instant reversals at its
-  waypoints), so the distance cut between two frames enters the prediction's covariance along the step.
+  waypoints), so the motion cut between two frames enters the prediction's covariance along itself.
 - **Bad odometry** is rejected with a counted reason before it reaches the buffer: not finite,
   invalid, from another host's clock, from the future or too old, a stalled source clock, a jump (more
   speed or turn rate than a robot has). A saturated gyro or a slip flag down-weights.
@@ -391,11 +391,15 @@ class OdometryFusion:
         self.counts["valid_on_odometry"] += 1
         return True, ""
 
+    def few_hits(self, n_hits: int) -> bool:
+        """Too few hits to count as lines in view, enough to contradict the prediction."""
+        return self.config.min_hits_to_contradict <= n_hits < self.config.min_hits_in_view
+
     def contradicts(self, n_hits: int, explained: float) -> bool:
         """Whether a frame of few hits (`explained`: their share on paint at the odometry prediction) speaks
         against the prediction. The robocon2025 twin, robot teleported into a view of 14-30 hits (fewer than
         `min_hits_in_view`): those frames were bridged as blind, valid on odometry 3.5 m from the robot."""
-        return n_hits >= self.config.min_hits_to_contradict and explained < self.config.min_explained
+        return self.few_hits(n_hits) and explained < self.config.min_explained
 
     def note_acquired(self, state: motion.MotionState, t: Optional[float], n_hits: int) -> None:
         """The localizer decided its pose by acquisition: a vision fix on its own evidence, which ends any
@@ -494,8 +498,8 @@ def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, w
     fused_by_vision = after is not None and after.lost == 0
     fusion.note_vision(before, after, len(hits), fused_by_vision)
     contradicted = False
-    if after is not None and not fused_by_vision and fusion._predicted_t == t and \
-            fusion.config.min_hits_to_contradict <= len(hits) < fusion.config.min_hits_in_view:
+    if after is not None and not fused_by_vision and fusion._predicted_t == t and fusion.few_hits(len(hits)):
+        # The hits are projected a second time (the tracker's projection stays inside it): only on these frames.
         explained = predictor.localizer.explained_fraction(predictor.projected_hits(hits), after.mean[:3],
                                                            after.cov[:3, :3])
         contradicted = fusion.contradicts(len(hits), explained)
