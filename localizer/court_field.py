@@ -108,6 +108,11 @@ def _element_sdfs(court) -> list[Element] | None:
     out: list[Element] = []
     for region in court.regions:
         white = region.colour in court.white_colours
+        if not white and not any(w for w, _, _ in out):
+            # Nothing white painted yet: it cuts nothing away. (robocon2025's shaded three-point areas,
+            # ellipse sectors with no analytic form here, sent its whole field to the raster fallback,
+            # whose staircase gradients pinned a view of one arc to a cm in any rotation about its centre.)
+            continue
         if any(_shape_sdf(np.zeros(1), np.zeros(1), s) is None for s in region.shapes + region.holes):
             return None
 

@@ -244,3 +244,40 @@ def test_few_hits_explained_at_the_true_pose_contradict_a_pose_metres_away(twin,
         wide = np.diag([0.12 ** 2, 0.12 ** 2, math.radians(0.5) ** 2])
         assert loc.explained_fraction(projected, near, tight) < 0.9 <= loc.explained_fraction(projected, near, wide)
     assert loc.explained_fraction(projector.project(np.zeros(0), np.zeros(0)), np.zeros(3), tight) == 1.0
+
+
+def test_a_view_of_one_arc_pins_nothing_along_it() -> None:
+    """robocon2025, the robot inside the three-point arc facing it, nothing else in view: any rotation about
+    the arc's centre explains the hits as well, so no fit of the frame may call itself pinned. (The court's
+    shaded three-point areas once sent its whole distance field to the raster fallback, whose staircase
+    gradients turned up to 25 degrees off the normal: each of those rotations fitted valid with a 1.5 cm std.)"""
+    from courtloc.sim.edges import scan_hits
+    from courtloc.sim.render import Renderer
+
+    predictor = load_predictor(bundled_package("robocon2025", "robocon2025"))
+    loc = predictor.localizer
+    arc = next(line for line in loc.court.lines if line.name == "three-point arc")
+    centre = np.array(arc.centre, float)
+    outer = arc.semi_axes[0] + arc.width / 2
+    # The field itself: its gradient on the arc's outer edge points away from the centre.
+    angles = np.radians(np.linspace(95.0, 265.0, 60))
+    x, y = centre[0] + outer * np.cos(angles), centre[1] + outer * np.sin(angles)
+    value, gx, gy = loc.field.lookup(x, y)
+    assert np.max(np.abs(value)) < loc.field.resolution
+    off_normal = np.degrees(np.abs(np.angle((gx + 1j * gy) / (np.cos(angles) + 1j * np.sin(angles)))))
+    assert np.max(off_normal) < 2.0, np.max(off_normal)
+
+    pose = np.array([4.28, 0.53, 1.557])
+    hits = predictor.projected_hits(scan_hits(Renderer(loc.court, loc.camera).render(tuple(pose))))
+    seen = hits.cpoints.ravel() * np.exp(1j * pose[2]) + complex(pose[0], pose[1])
+    assert len(seen) >= 40 and np.all(np.abs(np.abs(seen - complex(*centre)) - outer) < 0.03)  # the arc alone
+    truth = fit_pose(loc.field, hits, pose, loc.config.fit, loc.config.quality)
+    assert truth.n_inliers == truth.n_hits and not truth.valid
+    assert truth.position_std_m > 10 * loc.config.quality.max_position_std_m
+    for degrees in (10.0, 22.0):
+        turn = complex(math.cos(math.radians(degrees)), math.sin(math.radians(degrees)))
+        moved = complex(*centre) + (complex(pose[0], pose[1]) - complex(*centre)) * turn
+        rotated = fit_pose(loc.field, hits, np.array([moved.real, moved.imag, pose[2] + math.radians(degrees)]),
+                           loc.config.fit, loc.config.quality)
+        assert math.hypot(rotated.pose[0] - pose[0], rotated.pose[1] - pose[1]) > 0.3  # it stayed over there
+        assert rotated.cost < 1.5 * truth.cost and not rotated.valid, (degrees, rotated.cost, truth.cost)
