@@ -134,6 +134,9 @@ class AcquireConfig(BaseModel):
     max_decide_std_m: float = Field(1.5, gt=0, description="a pose prior grown wider than this (its std plus "
                                     "motion_sigma_mps per second of age) decides nothing: within its 3 sigma lie wrong "
                                     "basins metres away, and the true pose may be one the search has not found yet")
+    max_decide_yaw_std_deg: float = Field(30.0, gt=0, description="deciding, a prior's heading std counts at most "
+                                          "this wide (it grows by yaw_sigma_rps per second): it may decide for a "
+                                          "hypothesis heading where it said, never for one turned 90 degrees")
     decide_log_ratio: float = Field(4.6, gt=0, description="the prior decides when the best hypothesis is this much "
                                     "more likely (log) than every other (4.6: 100 to 1)")
     marks_min: int = Field(12, ge=1, description="colour marks (court.marks) a hypothesis must have seen agree "

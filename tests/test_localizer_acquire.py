@@ -222,3 +222,44 @@ def test_a_prior_too_vague_to_decide_does_not_stop_the_marks() -> None:
     # ... and the marks still decide nothing for a robot that stood still since the view was first fitted.
     standing = replace(moved, origin=POSE)
     assert acquire.decide([standing, its_twin], vague, None, 0.0, CFG, 0.3, court_marks=True).index is None
+
+
+def test_a_prior_whose_heading_has_grown_vague_never_decides_a_right_angle_turn() -> None:
+    """The robocon2025 loop after a camera blackout, vision only: the lost track's prior, 1.4 s old (1.2 m and
+    71 degrees wide), explained a view fitted 3 m and 90 degrees from the robot at d^2 8.9 while the true pose
+    had not been found (glare hits the true pose does not explain), and decided it. Deciding counts the
+    heading at most `max_decide_yaw_std_deg` wide; a hypothesis heading where the prior said is still decided
+    (a restarted stage's saved pose picks its twin, half a turn away, however old its heading)."""
+    where = np.array([3.5, 2.4, 2.6])
+    turned = np.array([2.2, 0.0, 2.6 - math.pi / 2])
+    prior = acquire.Prior("track", pose=where, std_m=0.5, yaw_std_rad=math.radians(10.0), t=0.0)
+    _, spread, yaw_spread = prior.spread_at(1.4, CFG)
+    assert spread <= CFG.max_decide_std_m and yaw_spread > math.radians(CFG.max_decide_yaw_std_deg)
+    assert acquire.prior_distance2(prior, turned, 1.4, CFG) <= CFG.decide_chi2  # explained, as it was
+    vague = _decide([turned, mirror(turned)], prior, t=1.4)
+    assert vague.index is None and vague.explained
+    # The same view with the cap off is decided: the cap is what stops it.
+    lax = CFG.model_copy(update={"max_decide_yaw_std_deg": 180.0})
+    assert acquire.decide([_hyp(turned, 1.4), _hyp(mirror(turned), 1.4)], prior, None, 1.4, lax, 0.3).index == 0
+    # The same prior decides for a hypothesis where it says, over its mirror twin.
+    assert _decide([mirror(where), where], prior, t=1.4).index == 1
+
+
+def test_a_carried_prior_is_compared_where_odometry_moved_it() -> None:
+    """A prior with odometry (`Prior.carry`) is read at each sighting's time where the wheels took it, as
+    wide as the wheels' error made it, not grown by `motion_sigma_mps`."""
+    start = np.array([1.0, 1.0, 0.0])
+
+    def carry(t: float):  # noqa: ANN202 - driving +x at 1.5 m/s, 2 cm of error per second
+        return start + [1.5 * t, 0.0, 0.0], 0.5 + 0.02 * t, math.radians(10.0) + 0.01 * t
+
+    prior = acquire.Prior("track", pose=start, std_m=0.5, yaw_std_rad=math.radians(10.0), t=0.0, carry=carry)
+    truth = start + [0.45, 0.0, 0.0]  # where the robot is 0.3 s later
+    parallel = truth + [0.0, 1.8, 0.0]  # the line beside it
+    assert acquire.prior_distance2(prior, truth, 0.3, CFG) < 0.01
+    assert acquire.prior_distance2(prior, parallel, 0.3, CFG) > CFG.decide_chi2
+    assert _decide([parallel, mirror(parallel)], prior, t=0.3).index is None
+    # Uncarried, the same prior left where the track was lost explains the parallel line within 3 sigma.
+    still = replace(prior, carry=None)
+    assert acquire.prior_distance2(still, parallel, 0.3, CFG) <= CFG.decide_chi2
+    assert _decide([parallel, mirror(parallel)], still, t=0.3).index == 0

@@ -297,3 +297,27 @@ def test_what_the_slip_limit_cuts_widens_the_prediction_along_the_step() -> None
     assert ahead.cov[1, 1] < 1e-3  # across it: the wheels' own noise only
     steady = fusion.buffer.delta(0.65, 0.79, 0.0)  # once the reference has caught up nothing more is cut
     assert steady is not None and steady.cut_dx == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_lost_tracks_prior_moves_with_the_odometry() -> None:
+    """While acquiring, the prior is where the wheels took the robot since the track was lost, its spread the
+    prediction's: 1.5 m/s along +y for a second moves it 1.5 m and widens it by centimetres (plus what its
+    heading spread does over that lever arm), where `motion_sigma_mps` would have added 0.5 m and left it behind."""
+    from courtloc.localizer import acquire
+    from courtloc.localizer.config import AcquireConfig
+
+    fusion = OdometryFusion(FusionConfig(enabled=True))
+    for i in range(121):
+        assert fusion.offer(odometry(i * 0.01, x=1.5 * i * 0.01, seq=i), now_s=i * 0.01 + 0.005)
+    lost = acquire.Prior("track", pose=np.array([2.0, -1.0, math.pi / 2]), std_m=0.5, yaw_std_rad=math.radians(2.0),
+                         t=0.1)
+    carried = fusion.carry_prior(lost)
+    assert carried.carry is not None and fusion.carry_prior(carried) is carried
+    pose, std_m, yaw_std = carried.spread_at(1.1, AcquireConfig())
+    assert pose[0] == pytest.approx(2.0, abs=1e-6) and pose[1] == pytest.approx(0.5, abs=1e-6)
+    assert 0.5 < std_m < 0.5 + 1.5 * math.radians(2.0) + 0.1 and yaw_std < math.radians(2.5)
+    # Beyond the odometry (2 s later than the last message) it falls back to growing where it was.
+    assert carried.spread_at(3.2, AcquireConfig())[0][1] == pytest.approx(-1.0)
+    # A kidnap prior is not carried: odometry did not see that move.
+    kidnap = acquire.Prior("kidnap", pose=lost.pose, std_m=2.0, t=0.1)
+    assert fusion.carry_prior(kidnap).carry is None
