@@ -14,11 +14,13 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
 2. Evidence. A prior says where the robot is: the configured start (a pose with a std, or a half),
    a pose set by the pit, or the last pose of a lost track (with its time: the robot moved since).
    A pose prior scores each hypothesis by its Mahalanobis distance d^2 (position std grown by
-   `motion_sigma_mps` per second since the prior held, heading likewise); hypotheses with d^2 >
-   `prior_gate_chi2` are not explained by the prior. The prior decides for the best-scoring
-   hypothesis when it lies within `decide_chi2` (3 sigma), the prior's grown spread is at most
-   `max_decide_std_m`, and every other one scores worse by at least `decide_log_ratio` in
-   log-likelihood (d^2 / 2). A half prior keeps the hypotheses in that half (|x| >= the centre margin). A lost
+   `motion_sigma_mps` per second since the prior held, heading likewise; with odometry the prior is
+   carried instead, `Prior.carry`: where the wheels took it, as wide as their error made it); hypotheses
+   with d^2 > `prior_gate_chi2` are not explained by the prior. The prior decides for the best-scoring
+   hypothesis when it lies within `decide_chi2` (3 sigma) with the heading counted at most
+   `max_decide_yaw_std_deg` wide (never a right-angle turn from where the prior said), the prior's grown
+   spread is at most `max_decide_std_m`, and every other one scores worse by at least `decide_log_ratio`
+   in log-likelihood (d^2 / 2). A half prior keeps the hypotheses in that half (|x| >= the centre margin). A lost
    track's prior that explains none of the hypotheses for `kidnap_frames` frames means the robot was moved (a kidnap, or a track
    that had snapped to a wrong parallel line): it is dropped, or with `kidnap_sigma_m` > 0 (default 0)
    it becomes a kidnap prior, the same place that wide with the heading unknown (an assumption: a robot
