@@ -240,13 +240,13 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
         # views alike: the robocon2025 loop after a blackout decided one 3 m and 90 degrees off, the true pose
         # not found yet, under a prior 1.4 s old and 71 degrees wide).
         cap = math.radians(cfg.max_decide_yaw_std_deg)
-        d2 = {i: hypothesis_distance2(prior, hypotheses[i], cfg, cap) for i in keep}
-        best = min(inside, key=d2.__getitem__)
+        deciding = {i: hypothesis_distance2(prior, hypotheses[i], cfg, cap) for i in keep}
+        best = min(inside, key=deciding.__getitem__)
         # The spread the decision rests on: the prior's, grown to the latest sighting compared with it.
         origin_t = max((s.t for s in hypotheses[best].sightings() if s.t is not None), default=None)
         _, spread, _ = prior.spread_at(origin_t, cfg)
-        if hypotheses[best].pinned and d2[best] <= cfg.decide_chi2 and spread <= cfg.max_decide_std_m and all(
-                0.5 * (d2[i] - d2[best]) >= cfg.decide_log_ratio for i in keep if i != best):
+        if hypotheses[best].pinned and deciding[best] <= cfg.decide_chi2 and spread <= cfg.max_decide_std_m and all(
+                0.5 * (deciding[i] - deciding[best]) >= cfg.decide_log_ratio for i in keep if i != best):
             return Decision(best, explained, tight=spread <= cfg.tight_prior_m, kidnap=prior.source == "kidnap")
         # A prior too vague (or too far) to decide does not stop the marks from deciding as they would
         # without it: the robocon2025 twin kept a hypothesis 2-5 cm from the truth undecided for 2.5 s, its

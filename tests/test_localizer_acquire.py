@@ -250,7 +250,7 @@ def test_a_carried_prior_is_compared_where_odometry_moved_it() -> None:
     wide as the wheels' error made it, not grown by `motion_sigma_mps`."""
     start = np.array([1.0, 1.0, 0.0])
 
-    def carry(t: float):  # noqa: ANN202 - driving +x at 1.5 m/s, 2 cm of error per second
+    def carry(t: float) -> tuple[np.ndarray, float, float]:  # driving +x at 1.5 m/s, 2 cm of error per second
         return start + [1.5 * t, 0.0, 0.0], 0.5 + 0.02 * t, math.radians(10.0) + 0.01 * t
 
     prior = acquire.Prior("track", pose=start, std_m=0.5, yaw_std_rad=math.radians(10.0), t=0.0, carry=carry)
