@@ -506,11 +506,11 @@ def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, w
     """One tracked frame with odometry around it: (Prediction, next state, reason when odometry decided).
 
     Without fusion it is exactly `predictor.track`."""
-    if fusion is not None and isinstance(state, acquire.Acquiring) and state.prior is not None:
-        state = replace(state, prior=fusion.carry_prior(state.prior))
     if fusion is None or not isinstance(state, (motion.MotionState, type(None))):
         # Without fusion, or while the localizer acquires (its state is the evidence between hypotheses,
-        # not a track odometry could move): exactly `predictor.track`.
+        # not a track odometry could move): `predictor.track`, only the acquisition's prior carried.
+        if fusion is not None and isinstance(state, acquire.Acquiring) and state.prior is not None:
+            state = replace(state, prior=fusion.carry_prior(state.prior))
         pred, after = predictor.track(hits, width, height, state, t=t, marks=marks)
         if fusion is not None and pred.valid and isinstance(after, motion.MotionState):
             fusion.note_acquired(after, t, len(hits))
