@@ -369,6 +369,11 @@ class OdometryFusion:
 
         return replace(prior, carry=at)
 
+    def holds(self, state: Optional[motion.MotionState], t: Optional[float]) -> bool:
+        """Whether odometry carried `state` to this frame (t) and nothing puts it in doubt."""
+        return isinstance(state, motion.MotionState) and t is not None and self._predicted_t == t \
+            and not self.suspect and self.last_fix is not None
+
     def search_next(self, state: motion.MotionState, cfg: motion.MotionConfig) -> motion.MotionState:
         """The state marked lost, so the tracker searches the whole court next frame (the odometry prior
         is the thing in doubt; the lost state's pose still only picks the symmetry twin)."""
@@ -520,6 +525,15 @@ def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, w
         before = fusion.search_next(before, predictor.localizer.config.motion)
         fusion.search_pending = False
     pred, after = predictor.track(hits, width, height, before, t=t, marks=marks)
+    if isinstance(after, acquire.Acquiring) and pred.reason == "jump" and fusion.holds(before, t):
+        # A valid fit the odometry-carried track cannot explain: without odometry the two become hypotheses
+        # (GeometricLocalizer._after_jump), but here the track is what the wheels and gyro say, and a lone
+        # fit elsewhere is more likely a misread view (occluders, a parallel line) than a move. The track
+        # coasts on odometry, the frame counts as one with lines in view and no fix, and `disagree_frames`
+        # such frames in a row make the kidnap suspicion (a search of the whole court), as any disagreement.
+        # Dropping the track instead lost it on the seed twin (`occluded`, fused): the continuation hypothesis,
+        # stepped at constant velocity, died in an occluded frame and the run stayed ambiguous for 20 s.
+        after = motion.coast(before, predictor.localizer.config.motion)
     if not isinstance(after, (motion.MotionState, type(None))):  # the track was dropped: acquiring again
         return pred, after, ""
     # lost == 0 after the step: a fit was fused, or a valid one (re)started the track.

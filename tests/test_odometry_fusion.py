@@ -321,3 +321,45 @@ def test_a_lost_tracks_prior_moves_with_the_odometry() -> None:
     # A kidnap prior is not carried: odometry did not see that move.
     kidnap = acquire.Prior("kidnap", pose=lost.pose, std_m=2.0, t=0.1)
     assert fusion.carry_prior(kidnap).carry is None
+
+
+def test_a_lone_fit_elsewhere_keeps_the_odometry_track_and_only_a_run_of_them_is_a_kidnap(robocon2025_twin) -> None:
+    """A valid fit the track cannot explain, while odometry carries the track: vision only, the track and the fit
+    become two hypotheses (acquisition); fused, the track coasts on odometry, the frame is invalid, and the next
+    frame that agrees is a valid fix again. The seed twin's `occluded` run lost its track that way and stayed
+    ambiguous for 20 s. `disagree_frames` such frames in a row are a kidnap: the court is searched."""
+    from courtloc.localizer import acquire
+    from courtloc.localizer.odometry_fusion import fused_track
+    from courtloc.sim.edges import scan_hits
+
+    predictor, renderer = robocon2025_twin
+    mcfg = predictor.localizer.config.motion
+    tracked = np.array([3.0, 1.0, 0.0])
+    moved = tracked + (0.0, 0.0, 0.3)  # turned 17 degrees: a view the tracked pose cannot explain
+    seen_moved = scan_hits(renderer.render(tuple(moved)))
+    seen_tracked = scan_hits(renderer.render(tuple(tracked)))
+    state = motion.MotionState(mean=np.r_[tracked, 0.0, 0.0, 0.0], cov=np.diag([1e-4, 1e-4, 1e-5, 1e-4, 1e-4, 1e-4]),
+                               t=0.1)
+    # Vision only, the same state and frame: the fit at the moved pose is a jump, the track becomes hypotheses.
+    jumped, after = predictor.track(seen_moved, 640, 480, state, t=0.2)
+    assert jumped.reason == "jump" and not jumped.valid and isinstance(after, acquire.Acquiring)
+    assert math.hypot(jumped.x - moved[0], jumped.y - moved[1]) < 0.05  # the fit found the moved pose
+    assert abs(math.remainder(jumped.yaw - moved[2], 2 * math.pi)) < 0.02
+
+    config = FusionConfig(enabled=True)
+    fusion = OdometryFusion(config)
+    for i in range(100):  # standing still: the odometry predicts the tracked pose
+        fusion.offer(odometry(i * 0.01, 0.0, seq=i), i * 0.01)
+    fusion.last_fix = (0.1, tracked)
+    answer, after, reason = fused_track(predictor, fusion, seen_moved, 640, 480, state, 0.2)
+    assert isinstance(after, motion.MotionState) and np.allclose(after.pose, tracked, atol=1e-6)
+    assert not answer.valid and reason == "odometry_unconfirmed" and not fusion.suspect
+    answer, after, reason = fused_track(predictor, fusion, seen_tracked, 640, 480, after, 0.25)
+    assert answer.valid and reason == "" and math.hypot(answer.x - tracked[0], answer.y - tracked[1]) < 0.05
+    t = 0.25
+    for k in range(config.disagree_frames):
+        t += 0.05
+        assert not fusion.suspect
+        answer, after, reason = fused_track(predictor, fusion, seen_moved, 640, 480, after, t)
+        assert not answer.valid
+    assert fusion.suspect and fusion.search_pending
