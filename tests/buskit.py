@@ -197,7 +197,9 @@ class BusClient:
             q.get_nowait()
 
     def put_raw(self, path: str, payload: bytes) -> None:
-        self.session.put(TOPICS[path].key(self.robot_id), payload)
+        # Blocking, not zenoh's default (drop): a test that puts hundreds of messages in a loop counts on the
+        # stage receiving each one, and a full transmit queue must not drop some on a busy machine.
+        self.session.put(TOPICS[path].key(self.robot_id), payload, congestion_control=zenoh.CongestionControl.BLOCK)
 
     def wait_subscribed(self, path: str, timeout: float = 20.0) -> None:
         """Until some subscriber of `path` is known to the router: a put before that reaches nobody."""
