@@ -377,7 +377,7 @@ class OdometryFusion:
         return replace(prior, carry=at)
 
     def holds(self, state: Optional[motion.MotionState], t: Optional[float]) -> bool:
-        """Whether odometry carried `state` to this frame (t) and nothing puts it in doubt."""
+        """Whether odometry carried `state` to this frame (t) after a fix, with no kidnap suspected."""
         return isinstance(state, motion.MotionState) and t is not None and self._predicted_t == t \
             and not self.suspect and self.last_fix is not None
 
@@ -551,8 +551,9 @@ def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, w
         # A valid fit the odometry-carried track cannot explain: without odometry the two become hypotheses
         # (GeometricLocalizer._after_jump), but here the track is what the wheels and gyro say, and a lone
         # fit elsewhere is more likely a misread view (occluders, a parallel line) than a move. The track
-        # coasts on odometry, the frame counts as one with lines in view and no fix, and `disagree_frames`
-        # such frames in a row make the kidnap suspicion (a search of the whole court), as any disagreement.
+        # coasts on odometry and is in doubt (`doubt`: nothing valid until `doubt_fixes` fixes in a row); with
+        # lines in view the frame counts toward `disagree_frames`, whose run makes the kidnap suspicion (a search
+        # of the whole court), as any disagreement.
         # Dropping the track instead lost it on the seed twin (`occluded`, fused): the continuation hypothesis,
         # stepped at constant velocity, died in an occluded frame and the run stayed ambiguous for 20 s.
         after = motion.coast(before, predictor.localizer.config.motion)
