@@ -19,6 +19,7 @@ from typing import Callable, Literal
 import zenoh
 from pydantic import BaseModel, ConfigDict, Field
 
+from courtloc.common.exposure import is_loopback
 from courtloc.common.security import SecurityConfig, client_settings
 from courtloc.common.services_table import MAX_BUS_MESSAGE_BYTES, Topic
 
@@ -51,6 +52,20 @@ class ZenohConfig(BaseModel):
         "one host travel as a descriptor; a link that cannot share memory (another host) carries bytes")
     security: SecurityConfig | None = Field(
         default=None, description="mTLS + password from a `courtloc secure init` bundle (tls/ endpoints)")
+    direct_links: bool = Field(
+        default=True, description="stages on the router's own host (every connect endpoint on loopback) join as "
+        "zenoh peers listening on loopback and exchange data over direct links: one socket hop instead of two "
+        "through the router. The router still carries everything to and from other hosts and tools. Not with "
+        "[zenoh.security]: a peer's listener would be a way in that skips the router's mTLS and password")
+
+    def stage_links(self) -> "ZenohConfig":
+        """The config a pipeline stage opens its session with: a loopback peer when `direct_links` allows it
+        (a client of a router on this host, no security), else this one unchanged."""
+        if (self.mode != "client" or not self.direct_links or self.security is not None or not self.connect
+                or not all(is_loopback(endpoint) for endpoint in self.connect)):
+            return self
+        # Port 0: the OS picks a free one; the router tells the other peers where (gossip).
+        return self.model_copy(update={"mode": "peer", "listen": ["tcp/127.0.0.1:0"]})
 
 
 def build_zenoh_config(cfg: ZenohConfig) -> zenoh.Config:
@@ -63,6 +78,11 @@ def build_zenoh_config(cfg: ZenohConfig) -> zenoh.Config:
         zcfg.insert_json5("connect/endpoints", json.dumps(cfg.connect))
     if cfg.listen:
         zcfg.insert_json5("listen/endpoints", json.dumps(cfg.listen))
+    if cfg.mode == "peer":
+        # Peers learn each other from the router they connect to (gossip) and link up directly; multicast
+        # scouting stays as configured (off: no other team's robot is found).
+        zcfg.insert_json5("scouting/gossip/enabled", "true")
+        zcfg.insert_json5("scouting/gossip/autoconnect", json.dumps({"peer": ["peer"]}))
     # After a router restart zenoh reconnects on its own schedule (1 s doubling to 4 s by default);
     # the same back-off as our first open keeps the resume time bounded by open_retry_max_s.
     zcfg.insert_json5("connect/retry", json.dumps({

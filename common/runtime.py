@@ -136,7 +136,7 @@ class Service:
     def run(self) -> int:
         """Run until SIGINT/SIGTERM; returns the process exit code."""
         stop_on_signals(self.stop_event)
-        self.session = open_session(self.zenoh_config, self.stop_event)
+        self.session = open_session(self.zenoh_config.stage_links(), self.stop_event)
         if self.session is None:
             return 0
         guard = None

@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def measure_relay(seconds: float, warmup_frames: int = 30, mode: str = "client",
+def measure_relay(seconds: float, warmup_frames: int = 30, mode: str = "stage",
                   fps: float = 30.0) -> dict[str, float | int | None]:
     """Router + the relay hops as processes (see courtloc/bench_relay.py); latency at the last hop."""
 

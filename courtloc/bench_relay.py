@@ -77,9 +77,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--port", type=int, required=True)
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--fps", type=float, default=30.0)
-    parser.add_argument("--mode", choices=["client", "peer"], default="client")
+    parser.add_argument("--mode", choices=["stage", "client", "peer"], default="stage",
+                        help="stage: the session a pipeline stage opens (ZenohConfig.stage_links)")
     args = parser.parse_args(argv)
-    session = open_session(ZenohConfig(mode=args.mode, connect=[f"tcp/127.0.0.1:{args.port}"]), threading.Event())
+    config = ZenohConfig(connect=[f"tcp/127.0.0.1:{args.port}"])
+    config = config.stage_links() if args.mode == "stage" else config.model_copy(update={"mode": args.mode})
+    session = open_session(config, threading.Event())
     assert session is not None
     try:
         print("ready", flush=True)

@@ -236,8 +236,11 @@ class GeometricLocalizer:
             if innov.chi2 <= mcfg.gate_chi2:
                 new = motion.update(pred, res.pose, r, innov)
                 fused = self._fused(res, new)
-                if fused.valid and pred.position_std_m > mcfg.regain_std_m:
-                    # The track had drifted (coasting, degenerate views): a lone valid fit then decides too
+                new = replace(new, weak=0 if fused.valid else pred.weak + 1)
+                drifted = pred.position_std_m > mcfg.regain_std_m or (
+                    mcfg.regain_weak_frames > 0 and pred.weak >= mcfg.regain_weak_frames)
+                if fused.valid and drifted:
+                    # The track may have drifted (coasting, degenerate views): a lone valid fit then decides too
                     # much (one fit 0.55 m off with a 0.08 m std at the seed court's end line was fused as
                     # valid). It re-anchors the track; the next agreeing frame answers valid.
                     fused = self._status(self._answer(fused, new.pose, invalid=True), "confirming")

@@ -16,8 +16,9 @@ only ever holds past frames. The rules, explicit:
 - a valid fit that disagrees restarts the state at the fit (the fit is the evidence; a filter that is
   wrong would otherwise never let go), answered invalid (`jump`): the next frame must agree with it; a
   trackable but invalid one that disagrees is ignored;
-- a state known worse than `regain_std_m` (after coasting or degenerate views) answers its next valid
-  fit invalid (`confirming`): one fit re-anchors it, two agreeing frames make it valid again;
+- a state known worse than `regain_std_m` (after coasting or degenerate views), or carried by the
+  constant-velocity model through `regain_weak_frames` frames in a row without a valid fit, answers its
+  next valid fit invalid (`confirming`): one fit re-anchors it, two agreeing frames make it valid again;
 - a frame without a usable fit answers the prediction (invalid) and counts as lost; after
   `max_lost_frames` lost frames in a row, a gap over `max_gap_s`, or once the state's position std
   passes `max_track_std_m`, the track is dropped and the caller acquires again with the lost state's
@@ -42,6 +43,9 @@ class MotionState:
     cov: np.ndarray  # (6, 6)
     t: float | None  # time of `mean` in seconds (None: frames without times, cfg.frame_period_s apart)
     lost: int = 0  # frames in a row without a usable fit
+    # Frames in a row answered without a valid fit (coasting, or degenerate views only) while the constant-
+    # velocity model carried the track; a state odometry carried starts it anew (odometry_fusion).
+    weak: int = 0
 
     @property
     def pose(self) -> np.ndarray:
@@ -89,7 +93,7 @@ def mirrored(state: MotionState) -> MotionState:
     flip = np.array([-1.0, -1.0, 1.0, -1.0, -1.0, 1.0])
     mean = state.mean * flip
     mean[2] = wrap_angle(mean[2] + math.pi)
-    return MotionState(mean=mean, cov=state.cov * np.outer(flip, flip), t=state.t, lost=state.lost)
+    return MotionState(mean=mean, cov=state.cov * np.outer(flip, flip), t=state.t, lost=state.lost, weak=state.weak)
 
 
 def elapsed(state: MotionState, t: float | None, cfg: MotionConfig) -> float:
@@ -119,7 +123,7 @@ def predict(state: MotionState, t: float | None, cfg: MotionConfig) -> MotionSta
         q[i, i + 3] = q[i + 3, i] = s2 * dt ** 2 / 2.0
         q[i + 3, i + 3] = s2 * dt
     cov = f @ state.cov @ f.T + q
-    return MotionState(mean=mean, cov=cov, t=t, lost=state.lost)
+    return MotionState(mean=mean, cov=cov, t=t, lost=state.lost, weak=state.weak)
 
 
 def _inverse3(m: np.ndarray) -> np.ndarray:
@@ -164,7 +168,7 @@ def update(state: MotionState, pose: np.ndarray, r: np.ndarray, innov: Innovatio
 
 def coast(state: MotionState, cfg: MotionConfig) -> MotionState:
     """A frame without a usable fit: keep the prediction, count the frame as lost."""
-    return MotionState(mean=state.mean, cov=state.cov, t=state.t, lost=state.lost + 1)
+    return MotionState(mean=state.mean, cov=state.cov, t=state.t, lost=state.lost + 1, weak=state.weak + 1)
 
 
 def is_lost(state: MotionState, t: float | None, cfg: MotionConfig) -> bool:

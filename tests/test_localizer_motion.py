@@ -170,6 +170,29 @@ def test_a_drifted_track_regains_validity_from_two_agreeing_frames(setup, pos_st
     assert step.result.valid and _close(step.result.pose, POSE)
 
 
+def test_a_track_carried_through_frames_without_a_valid_fit_regains_validity_from_two_agreeing_frames(setup):
+    """A track the constant-velocity model carried through `regain_weak_frames` frames in a row without a valid
+    fit answers its next valid fit `confirming` even while its std stays small (it can drift along a degenerate
+    view unaware: robocon2025 loop, one fit 0.73 m and 17 degrees off answered valid); fewer such frames do not."""
+    _, frame, blind = setup
+    loc = GeometricLocalizer(load_court("seed-gazebo"), load_camera("seed-gazebo"), LocalizerConfig())
+    needed = loc.config.motion.regain_weak_frames
+    assert 2 <= needed < loc.config.motion.max_lost_frames  # blind frames coast that long without losing the track
+    for weak, first_valid in ((needed - 1, True), (needed, False)):
+        state = _still_track(np.array(POSE) + [0.01, -0.01, 0.0], 0.01)
+        for k in range(weak):
+            step = loc.track(blind, state, 0.03 * (k + 1))
+            assert not step.result.valid
+            state = step.state
+        assert state.weak == weak and state.position_std_m < loc.config.motion.regain_std_m
+        step = loc.track(frame, state, 0.03 * (weak + 1))
+        assert _close(step.result.pose, POSE) and step.state.weak == 0
+        assert step.result.valid is first_valid, (weak, step.result.status)
+        assert first_valid or step.result.status == "confirming"
+        step = loc.track(frame, step.state, 0.03 * (weak + 2))
+        assert step.result.valid
+
+
 def test_a_fit_that_disagrees_is_weighed_against_the_track_by_the_frames_that_follow(setup) -> None:
     """One frame cannot tell a robot that was moved from a fit that snapped to a parallel line (on the
     robocon2025 twin a track restarted at such a fit and confirmed by the next frame, which fitted the same
