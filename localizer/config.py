@@ -98,8 +98,8 @@ class MotionConfig(BaseModel):
     regain_weak_frames: int = Field(5, ge=0, description="... and so does a track the constant-velocity model "
                                     "carried through this many frames in a row without a valid fit (0: never): "
                                     "its std can stay under regain_std_m while it drifts along a degenerate view "
-                                    "(robocon2025 loop, vision only: 9 such frames, then one valid fit 0.73 m and "
-                                    "17 degrees off)")
+                                    "(it bounds a one-frame drift; a view that fits the same wrong place two frames "
+                                    "running still answers valid)")
 
 
 class AcquireConfig(BaseModel):
