@@ -99,6 +99,9 @@ def test_local_preprocess_reads_shared_memory_while_a_no_shm_session_gets_bytes(
         assert [s.stage for s in edges.header.stamps] == ["camera", "preprocess"]
         health = client.wait_for("preprocess/health", lambda h: h.detail.get("frames_via_shm", 0) >= 5, timeout=30)
         assert health.detail["frames_via_bytes"] == 0 and health.rejected == 0
+        # Both stages run beside their router without the security bundle: linked directly (the camera a peer).
+        linked = client.wait_for("preprocess/health", lambda h: h.detail.get("zenoh_peers", 0) >= 1, timeout=30)
+        assert linked.detail["links"] == "direct"
         assert got_remote.wait(20), "the no-shm session got no frame"
         via_shm, frame = remote_frames[-1]
         assert not via_shm, "a link without shared memory carries bytes"
