@@ -64,7 +64,6 @@ class Service:
         self.rejected_by_reason: dict[str, int] = {}
         self.published: dict[str, int] = {}
         self.last_error = ""
-        self.links = "router"  # how this stage reaches the others: "direct" (loopback peer) or through the router
         self._latency = LatencyWindow()
         self._e2e = LatencyWindow()
         self._rate_in, self._rate_out = RateMeter(), RateMeter()
@@ -137,9 +136,7 @@ class Service:
     def run(self) -> int:
         """Run until SIGINT/SIGTERM; returns the process exit code."""
         stop_on_signals(self.stop_event)
-        links = self.zenoh_config.stage_links()
-        self.links = "direct" if links.mode == "peer" else "router"
-        self.session = open_session(links, self.stop_event)
+        self.session = open_session(self.zenoh_config.stage_links(), self.stop_event)
         if self.session is None:
             return 0
         guard = None
@@ -260,7 +257,7 @@ class Service:
         detail.update({f"reject.{k}": v for k, v in self.rejected_by_reason.items()})
         detail.update({f"published.{k}": v for k, v in self.published.items()})
         # Whether the direct links came up (docs/deployment.md): the peers this session is linked to.
-        detail["links"] = self.links
+        detail["links"] = "direct" if self.zenoh_config.stage_links().mode == "peer" else "router"
         detail["zenoh_peers"] = len(list(self.session.info.peers_zid())) if self.session is not None else 0
         detail.update(self.health_detail())
         detail = {k: clip_text(v) if isinstance(v, str) else v for k, v in detail.items()}
