@@ -178,6 +178,12 @@ class LocalizerConfig(BaseModel):
     rival_min_anisotropy: float = Field(3.0, ge=1, description="... and its position std along its weakest direction "
                                         "is at least this many times the strongest's (a view pinned both ways has no "
                                         "line to slide along; the probes cost as much as the frame's own fit)")
+    regain_yaw_probes_rad: list[float] = Field(
+        default_factory=lambda: [0.2, 0.35], max_length=8,
+        description="a drifted track's re-anchoring fit (motion.regain_std_m, regain_weak_frames) is also fitted from "
+        "its pose turned this far either way ([]: never); a start that converges elsewhere (beyond acquire.merge_m / "
+        "merge_rad) and explains the view within acquire's tie (tie_ratio, tie_abs) makes the frame 'ambiguous' and "
+        "keeps the track drifted: the view does not pin the pose, whatever the fit's covariance says")
     fit: FitConfig = FitConfig()
     motion: MotionConfig = MotionConfig()
     quality: QualityConfig = QualityConfig()

@@ -194,6 +194,22 @@ class GeometricLocalizer:
                 best = res
         return best
 
+    def _regain_rival(self, hits: ProjectedHits, fit: FitResult) -> FitResult | None:
+        """A fit of this frame from `fit`'s pose turned by `regain_yaw_probes_rad` either way that converged to
+        another pose and explains the view as well (within acquisition's tie, with at least half the inliers),
+        or None. Run only on a drifted track's re-anchoring frames (a few per minute), so its cost is small."""
+        cfg, acfg = self.config, self.config.acquire
+        if not cfg.regain_yaw_probes_rad:
+            return None
+        starts = [fit.pose + (0.0, 0.0, sign * d) for d in cfg.regain_yaw_probes_rad for sign in (1, -1)]
+        limit = fit.cost * acfg.tie_ratio + acfg.tie_abs
+        enough = max(fit.n_inliers // 2, cfg.quality.min_inliers)
+        for res in self._fit_starts(hits, np.array(starts)):
+            if not acquire.same_pose(res.pose, fit.pose, acfg) and res.cost <= limit and \
+                    (res.valid or res.n_inliers >= enough):
+                return res
+        return None
+
     def _split(self, state: motion.MotionState, step: TrackStep, rival: FitResult, t: float | None) -> TrackStep:
         """The track and a rival fit become acquisition hypotheses (as after a jump): the frame is invalid, the
         frames to come decide, the track's last pose the prior."""
@@ -226,7 +242,11 @@ class GeometricLocalizer:
                              yaw_std_rad=max(math.sqrt(max(float(state.cov[2, 2]), 0.0)),
                                              math.radians(self.config.acquire.lost_yaw_std_deg)), t=state.t)
 
-    def _step(self, hits: ProjectedHits, state: motion.MotionState, t: float | None) -> TrackStep:
+    def _step(self, hits: ProjectedHits, state: motion.MotionState, t: float | None,
+              guard_regain: bool = True) -> TrackStep:
+        """One frame of a track. `guard_regain`: a drifted track's re-anchoring fit must have no rival
+        (`_regain_rival`), and must be followed by a valid frame; acquisition, which steps its hypotheses here,
+        has its own rules for deciding."""
         mcfg = self.config.motion
         pred = motion.predict(state, t, mcfg)
         res = self.localize(hits, pred.pose)
@@ -244,6 +264,18 @@ class GeometricLocalizer:
                     # much (one fit 0.55 m off with a 0.08 m std at the seed court's end line was fused as
                     # valid). It re-anchors the track; the next agreeing frame answers valid.
                     fused = self._status(self._answer(fused, new.pose, invalid=True), "confirming")
+                    if guard_regain and mcfg.regain_weak_frames > 0:
+                        # Re-anchored, not yet regained: one more frame without a valid fit makes it drifted again
+                        # (a re-anchoring fit 0.3 m off, three trackable-only frames, then a valid fit 0.78 m off).
+                        new = replace(new, weak=mcfg.regain_weak_frames - 1)
+                    if guard_regain and self._regain_rival(hits, res.fit) is not None:
+                        # ... unless the view fits as well elsewhere: then the track stays drifted, and only a
+                        # re-anchoring view with no such rival brings validity back (robocon2025 twin, vision only:
+                        # after 10 frames of trackable-only fits the first valid one was 1.26 m and 17 degrees off
+                        # with a 3 cm std, a start turned 0.35 rad fitted at the same cost 0.6 m away, and the next
+                        # frame, of 13 hits, agreed with the wrong one: a valid pose 0.87 m off).
+                        fused = self._status(fused, "ambiguous")
+                        new = replace(new, weak=max(pred.weak + 1, mcfg.regain_weak_frames))
                 return TrackStep(fused, new)
             if res.valid:
                 # The evidence disagrees with the track: restart the track there, but one frame is not
@@ -260,7 +292,7 @@ class GeometricLocalizer:
         prior = None if state.prior is None else state.prior.at(t)
         live: list[tuple[LocalizeResult, acquire.Hypothesis]] = []
         for h in state.hypotheses:
-            step = self._step(hits, h.state, t)
+            step = self._step(hits, h.state, t, guard_regain=False)
             if step.state is not None and step.state.lost < acfg.drop_lost_frames:
                 # Pinned once a fit of it is valid: from then on the view has pinned where it is, and where
                 # that happened is evidence too (acquire.Hypothesis.pinned_sighting).

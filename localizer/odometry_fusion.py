@@ -91,7 +91,7 @@ class FusionConfig(BaseModel):
 
 
 @dataclass(frozen=True)
-class _Sample:
+class OdometrySample:
     t: float
     epoch: int
     pose: tuple[float, float, float]  # dead-reckoned in the epoch's frame
@@ -119,9 +119,9 @@ class OdometryBuffer:
 
     def __init__(self, keep_s: float) -> None:
         self.keep_s = keep_s
-        self.samples: deque[_Sample] = deque()
+        self.samples: deque[OdometrySample] = deque()
 
-    def add(self, sample: _Sample) -> None:
+    def add(self, sample: OdometrySample) -> None:
         if self.samples and sample.epoch != self.samples[-1].epoch:
             self.samples.clear()  # differences across epochs mean nothing
         self.samples.append(sample)
@@ -198,8 +198,8 @@ class OdometryFusion:
         self.rejected: Counter[str] = Counter()
         self.counts: Counter[str] = Counter()
         self.last_fix: Optional[tuple[float, np.ndarray]] = None  # (t, pose) of the last vision fix
-        self._last: Optional[_Sample] = None  # the last accepted sample as received
-        self._corrected: Optional[_Sample] = None  # the same with slip limited (what the buffer holds)
+        self._last: Optional[OdometrySample] = None  # the last accepted sample as received
+        self._corrected: Optional[OdometrySample] = None  # the same with slip limited (what the buffer holds)
         self._speed_ref = 0.0  # the speed the next window may exceed only by what the robot can accelerate
         self._predicted_t: Optional[float] = None  # the frame time the last prediction used odometry for
         self._anchor: Optional[tuple[float, np.ndarray]] = None  # first fix of the pair that teaches bias/scale
@@ -223,7 +223,7 @@ class OdometryFusion:
             self.counts["gyro_saturated"] += 1
         if message.wheel_slip:
             self.counts["wheel_slip"] += 1
-        raw = _Sample(t=message.header.capture_mono_ns * 1e-9, epoch=message.epoch,
+        raw = OdometrySample(t=message.header.capture_mono_ns * 1e-9, epoch=message.epoch,
                       pose=(message.odom_x_m, message.odom_y_m, message.odom_yaw_rad),
                       slip=message.wheel_slip or message.gyro_saturated, source_ns=message.source_time_ns,
                       seq=message.source_seq)
@@ -231,7 +231,7 @@ class OdometryFusion:
         self._last = raw
         return True
 
-    def _limit_slip(self, raw: _Sample, message: Odometry) -> _Sample:
+    def _limit_slip(self, raw: OdometrySample, message: Odometry) -> OdometrySample:
         """The sample with its step shortened to what the robot can accelerate to (unflagged slip bounded).
 
         A wheel that slips over-reads its speed from one window to the next faster than the robot can
@@ -255,9 +255,35 @@ class OdometryFusion:
         step_x, step_y = raw.pose[0] - last.pose[0], raw.pose[1] - last.pose[1]
         pose = (corrected.pose[0] + factor * step_x, corrected.pose[1] + factor * step_y, raw.pose[2])
         cut = (corrected.cut[0] + (1.0 - factor) * step_x, corrected.cut[1] + (1.0 - factor) * step_y)
-        self._corrected = _Sample(t=raw.t, epoch=raw.epoch, pose=pose, slip=raw.slip or factor < 1.0,
+        self._corrected = OdometrySample(t=raw.t, epoch=raw.epoch, pose=pose, slip=raw.slip or factor < 1.0,
                                   source_ns=raw.source_ns, seq=raw.seq, cut=cut)
         return self._corrected
+
+    def snapshot(self, t: float, max_samples: int = 16) -> tuple[list[OdometrySample], OdometrySample | None]:
+        """What a restarted stage needs to carry a pose of time t across the restart (`resume`): the buffered
+        samples from the last one at or before t to the newest (at most `max_samples`), and the newest sample
+        as received. ([], None) when the buffer does not reach back to t."""
+        samples = list(self.buffer.samples)
+        first = max((i for i, s in enumerate(samples) if s.t <= t), default=None)
+        if first is None or self._last is None or len(samples) - first > max_samples:
+            return [], None
+        return samples[first:], self._last
+
+    def resume(self, samples: list[OdometrySample], last: OdometrySample) -> bool:
+        """Seed a fresh buffer with a snapshot taken before a restart, so odometry arriving after it (the same
+        epoch: the MCU kept counting) reaches back to the saved pose. False (nothing changed) when this
+        fusion has samples already or the snapshot is not one epoch in time order."""
+        ordered = all(a.t < b.t for a, b in zip(samples, samples[1:]))
+        if self.buffer.samples or self._last is not None or not samples or not ordered or \
+                any(s.epoch != last.epoch for s in samples):
+            return False
+        for sample in samples:
+            self.buffer.add(sample)
+        self._last, self._corrected = last, samples[-1]
+        # The speed before the restart is not known: the first step after it (the whole gap) is not slip-limited.
+        self._speed_ref = math.inf
+        self.counts["resumed"] += 1
+        return True
 
     def _check(self, m: Odometry, now_s: float) -> str:
         cfg = self.config

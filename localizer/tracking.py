@@ -34,6 +34,7 @@ class Tracker:
     start: acquire.Prior | None = None  # the configured start: the evidence of a fresh run
     motion: object | None = None
     odometry_reason: str = ""
+    clock_agreement_s: float = 0.5  # see state_for
     # A prior stamped on the wall clock (a pose saved before a restart): aged at the first frame that uses it.
     _pending_wall_ns: int | None = field(default=None, repr=False)
     # A prior another thread asked for (the pit's pose): applied by the worker at its next frame.
@@ -63,7 +64,7 @@ class Tracker:
         odometry made a frame invalid is left in `odometry_reason`. `marks`: the frame's colour marks (int16
         rows of (row, col, mark index)), evidence where the court has them.
         """
-        state = self.state_for(capture_wall_ns)
+        state = self.state_for(capture_wall_ns, t)
         prediction, self.motion, self.odometry_reason = fused_track(predictor, fusion, hits, width, height,
                                                                     state, t, marks)
         self.update(prediction.x, prediction.y, prediction.yaw, prediction.valid, prediction.trackable)
@@ -88,15 +89,23 @@ class Tracker:
         """From another thread: acquire with this prior from the next frame on (one reference assignment)."""
         self._requested = prior
 
-    def state_for(self, capture_wall_ns: int | None) -> object | None:
-        """The state to hand the model with a frame captured at `capture_wall_ns` (None: no wall clock)."""
+    def state_for(self, capture_wall_ns: int | None, t: float | None = None) -> object | None:
+        """The state to hand the model with a frame captured at `capture_wall_ns` (None: no wall clock), `t` on
+        the frames' clock.
+
+        A saved prior that carries its time on the frames' clock keeps it only when that clock agrees with the
+        wall clock about its age (within `clock_agreement_s`): then odometry can carry it from that time. Else
+        (the clock restarted: a reboot, another camera host) its time is dropped and the wall-clock age spreads it."""
         requested, self._requested = self._requested, None
         if requested is not None:
             self.set_prior(requested)
         if self._pending_wall_ns is not None and capture_wall_ns is not None \
                 and isinstance(self.motion, acquire.Acquiring) and self.motion.prior is not None:
             age = max(0.0, (capture_wall_ns - self._pending_wall_ns) * 1e-9)
-            self.motion = replace(self.motion, prior=replace(self.motion.prior, age_s=age))
+            prior = self.motion.prior
+            if prior.t is not None and (t is None or t < prior.t or abs((t - prior.t) - age) > self.clock_agreement_s):
+                prior = replace(prior, t=None)
+            self.motion = replace(self.motion, prior=replace(prior, age_s=age))
         self._pending_wall_ns = None
         return self.motion
 

@@ -2,7 +2,9 @@
 rules, and symmetry through a track (synthetic poses; twin frames for the localizer-level rules)."""
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -186,11 +188,60 @@ def test_a_track_carried_through_frames_without_a_valid_fit_regains_validity_fro
             state = step.state
         assert state.weak == weak and state.position_std_m < loc.config.motion.regain_std_m
         step = loc.track(frame, state, 0.03 * (weak + 1))
-        assert _close(step.result.pose, POSE) and step.state.weak == 0
+        assert _close(step.result.pose, POSE) and step.state.weak == (0 if first_valid else needed - 1)
         assert step.result.valid is first_valid, (weak, step.result.status)
         assert first_valid or step.result.status == "confirming"
         step = loc.track(frame, step.state, 0.03 * (weak + 2))
-        assert step.result.valid
+        assert step.result.valid and step.state.weak == 0
+
+
+def test_a_re_anchored_track_without_a_valid_frame_after_it_must_re_anchor_again(setup) -> None:
+    """The frame after a re-anchoring ('confirming') must fit validly: one without a valid fit makes the track
+    drifted again, so its next valid fit confirms anew (robocon2025 twin, vision only: a re-anchoring fit 0.3 m
+    off, three trackable-only frames, then a valid fit 0.78 m off answered valid)."""
+    _, frame, blind = setup
+    loc = GeometricLocalizer(load_court("seed-gazebo"), load_camera("seed-gazebo"), LocalizerConfig())
+    needed = loc.config.motion.regain_weak_frames
+    state = _still_track(np.array(POSE) + [0.01, -0.01, 0.0], 0.01)
+    for k in range(needed):
+        state = loc.track(blind, state, 0.03 * (k + 1)).state
+    step = loc.track(frame, state, 0.03 * (needed + 1))
+    assert step.result.status == "confirming"
+    step = loc.track(blind, step.state, 0.03 * (needed + 2))
+    assert not step.result.valid
+    step = loc.track(frame, step.state, 0.03 * (needed + 3))
+    assert not step.result.valid and step.result.status == "confirming", "one blind frame re-arms the rule"
+    step = loc.track(frame, step.state, 0.03 * (needed + 4))
+    assert step.result.valid and _close(step.result.pose, POSE)
+
+
+def _recorded_reanchoring():  # noqa: ANN202
+    from courtloc.localizer.predictor import load_predictor
+    from courtloc.models import bundled_package
+
+    data = json.loads((Path(__file__).parent / "data" / "r25_reanchor_rival.json").read_text())
+    s, f = data["state"], data["frame"]
+    state = motion.MotionState(mean=np.array(s["mean"]), cov=np.array(s["cov"]), t=s["t"], lost=s["lost"],
+                               weak=s["weak"])
+    predictor = load_predictor(bundled_package("robocon2025"))
+    return predictor, state, predictor.projected_hits(np.array(f["hits"], np.int16)), f["t"], np.array(data["truth"])
+
+
+@pytest.mark.parametrize("probes, status", [([0.2, 0.35], "ambiguous"), ([], "confirming")])
+def test_a_re_anchoring_fit_the_view_explains_as_well_elsewhere_keeps_the_track_drifted(probes, status) -> None:
+    """A recorded frame (tests/data/r25_reanchor_rival.json) whose fit from the drifted track is valid with a
+    3 cm std but 1.26 m from the truth: a start turned 0.35 rad converges 0.6 m away at the same cost. With the
+    probes the frame is 'ambiguous' and the track stays drifted (its next valid fit is checked again); without
+    them it re-anchors there ('confirming'), and the next agreeing frame would answer valid."""
+    predictor, state, hits, t, truth = _recorded_reanchoring()
+    loc = predictor.localizer
+    loc.config = loc.config.model_copy(update={"regain_yaw_probes_rad": probes})
+    needed = loc.config.motion.regain_weak_frames
+    assert state.weak >= needed
+    step = loc.track(hits, state, t)
+    assert math.hypot(*(step.result.fit.pose[:2] - truth[:2])) > 0.5, "the recorded frame fits the wrong place"
+    assert not step.result.valid and step.result.status == status
+    assert (step.state.weak >= needed) is (status == "ambiguous")
 
 
 def test_a_fit_that_disagrees_is_weighed_against_the_track_by_the_frames_that_follow(setup) -> None:

@@ -10,7 +10,7 @@ import pytest
 from courtloc.common.messages import Header, Odometry
 from courtloc.localizer import motion
 from courtloc.localizer.config import MotionConfig
-from courtloc.localizer.odometry_fusion import FusionConfig, OdometryBuffer, OdometryFusion, _Sample
+from courtloc.localizer.odometry_fusion import FusionConfig, OdometryBuffer, OdometryFusion, OdometrySample
 
 
 def odometry(t: float, x: float, y: float = 0.0, yaw: float = 0.0, epoch: int = 0, seq: int = 0,
@@ -28,7 +28,7 @@ def test_buffer_gives_body_frame_motion_between_two_times() -> None:
     for i in range(101):  # an arc: 1 m/s, 0.5 rad/s, dead-reckoned exactly
         t = i * 0.01
         yaw = 0.5 * t
-        buffer.add(_Sample(t=t, epoch=0, pose=(2 * math.sin(yaw), 2 * (1 - math.cos(yaw)), yaw), slip=False,
+        buffer.add(OdometrySample(t=t, epoch=0, pose=(2 * math.sin(yaw), 2 * (1 - math.cos(yaw)), yaw), slip=False,
                            source_ns=i, seq=i))
     delta = buffer.delta(0.305, 0.805, max_extrapolate_s=0.0)
     assert delta is not None
@@ -39,7 +39,7 @@ def test_buffer_gives_body_frame_motion_between_two_times() -> None:
     assert delta.dy == pytest.approx(2 * (1 - math.cos(turn)), abs=1e-4)
     assert buffer.delta(0.9, 1.05, max_extrapolate_s=0.08) is not None  # 50 ms past the newest
     assert buffer.delta(0.9, 1.2, max_extrapolate_s=0.08) is None  # too late to extrapolate
-    buffer.add(_Sample(t=1.01, epoch=1, pose=(0, 0, 0), slip=False, source_ns=999, seq=999))
+    buffer.add(OdometrySample(t=1.01, epoch=1, pose=(0, 0, 0), slip=False, source_ns=999, seq=999))
     assert buffer.delta(0.9, 1.0, max_extrapolate_s=0.08) is None  # a new epoch: nothing to difference
 
 

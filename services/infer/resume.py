@@ -18,9 +18,30 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from courtloc.localizer.acquire import Prior
+from courtloc.localizer.odometry_fusion import OdometrySample
 
 log = logging.getLogger(__name__)
 SAVE_PERIOD_NS = 500_000_000
+
+
+class SavedOdometry(BaseModel):
+    """One buffered odometry sample (localizer.odometry_fusion.OdometrySample)."""
+
+    model_config = ConfigDict(extra="forbid")
+    t: float
+    epoch: int
+    pose: tuple[float, float, float]
+    slip: bool
+    source_ns: int
+    seq: int
+    cut: tuple[float, float] = (0.0, 0.0)
+
+    @classmethod
+    def of(cls, sample: OdometrySample) -> "SavedOdometry":
+        return cls(**sample.__dict__)
+
+    def sample(self) -> OdometrySample:
+        return OdometrySample(**self.model_dump())
 
 
 class SavedPose(BaseModel):
@@ -33,13 +54,25 @@ class SavedPose(BaseModel):
     std_m: float = Field(ge=0)
     yaw_std_rad: float = Field(ge=0)
     wall_ns: int = Field(description="capture wall-clock time of the frame the pose is from")
+    t_s: float | None = Field(default=None, description="the same frame's time on the frames' monotonic clock")
+    odometry: list[SavedOdometry] = Field(default_factory=list, max_length=16, description="buffered odometry from "
+                                          "the pose's time on (the fusion's snapshot), so a restarted stage carries "
+                                          "the pose across the restart instead of growing its spread with its age")
+    odometry_last: SavedOdometry | None = Field(default=None, description="the newest odometry sample as received")
 
     def age_s(self, now_ns: int | None = None) -> float:
         return ((now_ns or time.time_ns()) - self.wall_ns) * 1e-9
 
     def prior(self) -> Prior:
+        """The pose as a prior. Its time `t_s` stays with it: the tracker keeps it only where the frames' clock
+        agrees with the wall clock about the pose's age (`Tracker.state_for`), else the prior is aged by wall time."""
         return Prior(source="track", pose=np.array([self.x, self.y, self.yaw]), std_m=self.std_m,
-                     yaw_std_rad=self.yaw_std_rad)
+                     yaw_std_rad=self.yaw_std_rad, t=self.t_s)
+
+    def odometry_snapshot(self) -> tuple[list[OdometrySample], OdometrySample | None]:
+        if not self.odometry or self.odometry_last is None:
+            return [], None
+        return [s.sample() for s in self.odometry], self.odometry_last.sample()
 
 
 class ResumeFile:
@@ -65,14 +98,21 @@ class ResumeFile:
             return None
         return saved
 
-    def offer(self, prior: Prior | None, court: str, wall_ns: int) -> None:
-        """Save a tracked pose when the last save is at least SAVE_PERIOD_NS old."""
-        if prior is None or prior.pose is None or wall_ns - self._last_ns < SAVE_PERIOD_NS:
+    def due(self, wall_ns: int) -> bool:
+        """Whether a pose of this time would be saved (the last save is at least SAVE_PERIOD_NS old)."""
+        return wall_ns - self._last_ns >= SAVE_PERIOD_NS
+
+    def offer(self, prior: Prior | None, court: str, wall_ns: int,
+              odometry: tuple[list[OdometrySample], OdometrySample | None] = ([], None)) -> None:
+        """Save a tracked pose (and the odometry snapshot from its time on) when `due`."""
+        if prior is None or prior.pose is None or not self.due(wall_ns):
             return
         self._last_ns = wall_ns
+        samples, last = odometry
         saved = SavedPose(robot_id=self.robot_id, court=court, x=float(prior.pose[0]), y=float(prior.pose[1]),
                           yaw=float(prior.pose[2]), std_m=float(prior.std_m), yaw_std_rad=float(prior.yaw_std_rad or 0.0),
-                          wall_ns=wall_ns)
+                          wall_ns=wall_ns, t_s=prior.t, odometry=[SavedOdometry.of(s) for s in samples] if last else [],
+                          odometry_last=SavedOdometry.of(last) if last else None)
         tmp = self.path.with_name(self.path.name + ".tmp")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)

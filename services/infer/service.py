@@ -25,7 +25,7 @@ from courtloc.models import bundled_package as bundled_default
 from courtloc.services.infer.config import InferConfig, StartConfig
 from courtloc.services.infer.engine import LoadedModel, load_model
 from courtloc.services.infer.model_control import ModelControl
-from courtloc.services.infer.resume import ResumeFile
+from courtloc.services.infer.resume import ResumeFile, SavedPose
 from courtloc.services.infer.shadow import ShadowRunner
 from courtloc.services.infer.store import ModelRef, ModelStore, StoredModel
 from courtloc.services.infer.uploads import Uploads
@@ -81,7 +81,23 @@ class InferService(Service):
         saved = self.resume.load(self.active.manifest.court, self.config.resume_max_age_s)
         if saved is not None:  # a restart mid-run: the saved pose, not the configured start, is the evidence
             self.tracker.set_prior(saved.prior(), wall_ns=saved.wall_ns)
-            self.log.info("resuming from the pose saved %.1f s ago: (%.2f, %.2f)", saved.age_s(), saved.x, saved.y)
+            carried = self.fusion is not None and self._resume_odometry(saved)
+            self.log.info("resuming from the pose saved %.1f s ago: (%.2f, %.2f)%s", saved.age_s(), saved.x, saved.y,
+                          ", carried by odometry" if carried else "")
+
+    def _resume_odometry(self, saved: SavedPose) -> bool:
+        """Seed the fusion with the odometry saved with the pose, so odometry carries the pose across the restart.
+        Only when this host's monotonic clock agrees with the wall clock about the snapshot's age (no reboot
+        since: the samples are stamped on this host's monotonic clock, `OdometryFusion._check`)."""
+        samples, last = saved.odometry_snapshot()
+        if last is None or self.fusion is None:
+            return False
+        mono_age = time.monotonic() - last.t
+        wall_age = (time.time_ns() - saved.wall_ns) * 1e-9
+        if mono_age < 0 or abs(mono_age - wall_age) > self.tracker.clock_agreement_s:
+            self.log.info("not carrying the saved pose by odometry: the monotonic clock restarted")
+            return False
+        return self.fusion.resume(samples, last)
 
     def _load_active(self) -> LoadedModel:
         """The store's active model; a fresh store gets the bundled package of the deployment's court and
@@ -153,8 +169,12 @@ class InferService(Service):
             return
         pose = self.make_pose(model, message, hits, fresh=fresh, tracker=self.tracker, marks=marks)
         self.publish("infer/pose", pose)
-        if pose.header.valid:
-            self.resume.offer(self.tracker.tracked_prior(), model.manifest.court, pose.header.capture_wall_ns)
+        if pose.header.valid and self.resume.due(pose.header.capture_wall_ns):
+            prior = self.tracker.tracked_prior()
+            fusion = self.fusion
+            odometry = fusion.snapshot(prior.t) if fusion is not None and prior is not None and prior.t is not None \
+                else ([], None)
+            self.resume.offer(prior, model.manifest.court, pose.header.capture_wall_ns, odometry)
         shadow = self.shadow
         if shadow is not None:
             shadow.offer(message, hits, pose, marks)
