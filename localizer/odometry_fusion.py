@@ -57,6 +57,9 @@ class FusionConfig(BaseModel):
     horizon_s: float = Field(2.5, gt=0, le=10.0, description="longest a pose stays valid on odometry alone")
     max_position_std_m: float = Field(0.12, gt=0, description="an odometry-only pose less certain than this is invalid")
     buffer_s: float = Field(3.0, gt=0, le=30.0, description="odometry kept for aligning frames")
+    resume_hold_s: float = Field(10.0, gt=0, le=60.0, description="after a restart, the odometry saved with the pose "
+                                 "is kept this long after its newest sample, so a slow restart still carries the saved "
+                                 "pose by odometry (the buffer then holds up to this plus buffer_s)")
     max_extrapolate_s: float = Field(0.08, ge=0, description="odometry may be extrapolated this far to a frame")
     future_tolerance_s: float = Field(0.02, ge=0, description="a sample stamped later than now + this is refused")
     max_speed_m_s: float = Field(6.0, gt=0, description="faster between two samples is a jump, not motion")
@@ -120,11 +123,16 @@ class OdometryBuffer:
     def __init__(self, keep_s: float) -> None:
         self.keep_s = keep_s
         self.samples: deque[OdometrySample] = deque()
+        # Nothing is dropped while the newest sample is older than this: a snapshot seeded after a restart
+        # (`OdometryFusion.resume`) stays until the pose saved with it can have been carried to the first frames.
+        self.hold_until = -math.inf
 
     def add(self, sample: OdometrySample) -> None:
         if self.samples and sample.epoch != self.samples[-1].epoch:
             self.samples.clear()  # differences across epochs mean nothing
         self.samples.append(sample)
+        if sample.t <= self.hold_until:
+            return
         while self.samples and self.samples[0].t < sample.t - self.keep_s:
             self.samples.popleft()
 
@@ -279,6 +287,9 @@ class OdometryFusion:
             return False
         for sample in samples:
             self.buffer.add(sample)
+        # A restart can take longer than buffer_s (a loaded Jetson: 3 s from the kill to the first frame): the
+        # snapshot must outlive the first frames after it.
+        self.buffer.hold_until = last.t + self.config.resume_hold_s
         self._last, self._corrected = last, samples[-1]
         # The speed before the restart is not known: the first step after it (the whole gap) is not slip-limited.
         self._speed_ref = math.inf

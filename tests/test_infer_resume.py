@@ -50,25 +50,35 @@ def _saved_and_reloaded(tmp_path: Path) -> tuple[OdometryFusion, acquire.Prior]:
     return after, loaded.prior()
 
 
-def test_a_saved_pose_is_carried_across_the_restart_by_the_odometry_after_it(tmp_path: Path) -> None:
+@pytest.mark.parametrize("restart_s", [1.3, 4.0])
+def test_a_saved_pose_is_carried_across_the_restart_by_the_odometry_after_it(tmp_path: Path, restart_s: float) -> None:
+    """A restart of 1.3 s, and one longer than the buffer keeps odometry (buffer_s 3 s): the snapshot stays."""
     after, prior = _saved_and_reloaded(tmp_path)
-    _feed(after, 2.3, 3.0)  # the restart took 1.3 s; the robot drove on at 1.5 m/s all along
+    assert restart_s < after.config.resume_hold_s
+    first = 1.0 + restart_s  # the robot drove on at 1.5 m/s all along
+    _feed(after, first, first + 0.7)
+    now = first + 0.7
     carried = after.carry_prior(prior)
-    pose, std_m, yaw_std = carried.spread_at(3.0, AcquireConfig())
-    # 2 s at 1.5 m/s facing +y since the pose's time (1e-6: interpolation of exact dead reckoning).
-    assert pose[0] == pytest.approx(POSE[0], abs=1e-6) and pose[1] == pytest.approx(POSE[1] + 2 * SPEED, abs=1e-6)
-    # Its spread is the odometry's over the 3 m driven (wheel noise, scale uncertainty, the heading's spread
+    pose, std_m, yaw_std = carried.spread_at(now, AcquireConfig())
+    # At 1.5 m/s facing +y since the pose's time (1e-6: interpolation of exact dead reckoning).
+    driven = SPEED * (now - 1.0)
+    assert pose[0] == pytest.approx(POSE[0], abs=1e-6) and pose[1] == pytest.approx(POSE[1] + driven, abs=1e-6)
+    # Its spread is the odometry's over the distance driven (wheel noise, scale uncertainty, the heading's spread
     # over the lever arm; their sum bounds their root-sum-square), not 0.5 m per second of the restart.
-    cfg, driven = FusionConfig(), 2 * SPEED
+    cfg = FusionConfig()
     bound = 0.02 + (cfg.wheel_noise_per_m + cfg.scale_sigma) * driven + driven * math.radians(0.5) + 0.01
-    yaw_bound = math.radians(0.5) + cfg.gyro_bias_sigma_rad_s * 2.0 + cfg.yaw_noise_floor_rad  # gyro bias over 2 s
+    yaw_bound = math.radians(0.5) + cfg.gyro_bias_sigma_rad_s * (now - 1.0) + cfg.yaw_noise_floor_rad  # gyro bias
     assert std_m < bound and yaw_std is not None and yaw_std < yaw_bound
-    # Without the snapshot the new stage's odometry starts after the pose: the prior stays behind, 1 m wider.
+    # Without the snapshot the new stage's odometry starts after the pose: the prior stays behind and widens.
     fresh = OdometryFusion(FusionConfig(enabled=True))
-    _feed(fresh, 2.3, 3.0)
-    pose, std_m, _ = fresh.carry_prior(prior).spread_at(3.0, AcquireConfig())
-    assert pose[1] == pytest.approx(POSE[1]) and std_m == pytest.approx(0.02 + AcquireConfig().motion_sigma_mps * 2.0)
+    _feed(fresh, first, now)
+    pose, std_m, _ = fresh.carry_prior(prior).spread_at(now, AcquireConfig())
+    assert pose[1] == pytest.approx(POSE[1])
+    assert std_m == pytest.approx(0.02 + AcquireConfig().motion_sigma_mps * (now - 1.0))
     assert after.counts["resumed"] == 1
+    # Once the hold is over the buffer keeps buffer_s again.
+    _feed(after, now + 0.01, 1.02 + cfg.resume_hold_s + 0.5)
+    assert after.buffer.samples[-1].t - after.buffer.samples[0].t <= cfg.buffer_s
 
 
 def test_a_snapshot_is_refused_by_a_fusion_that_has_odometry_or_across_epochs(tmp_path: Path) -> None:
