@@ -41,6 +41,7 @@ from __future__ import annotations
 import math
 from collections import Counter, deque
 from dataclasses import dataclass, replace
+from itertools import pairwise
 from typing import Optional
 
 import numpy as np
@@ -232,9 +233,9 @@ class OdometryFusion:
         if message.wheel_slip:
             self.counts["wheel_slip"] += 1
         raw = OdometrySample(t=message.header.capture_mono_ns * 1e-9, epoch=message.epoch,
-                      pose=(message.odom_x_m, message.odom_y_m, message.odom_yaw_rad),
-                      slip=message.wheel_slip or message.gyro_saturated, source_ns=message.source_time_ns,
-                      seq=message.source_seq)
+                             pose=(message.odom_x_m, message.odom_y_m, message.odom_yaw_rad),
+                             slip=message.wheel_slip or message.gyro_saturated, source_ns=message.source_time_ns,
+                             seq=message.source_seq)
         self.buffer.add(self._limit_slip(raw, message))
         self._last = raw
         return True
@@ -264,7 +265,7 @@ class OdometryFusion:
         pose = (corrected.pose[0] + factor * step_x, corrected.pose[1] + factor * step_y, raw.pose[2])
         cut = (corrected.cut[0] + (1.0 - factor) * step_x, corrected.cut[1] + (1.0 - factor) * step_y)
         self._corrected = OdometrySample(t=raw.t, epoch=raw.epoch, pose=pose, slip=raw.slip or factor < 1.0,
-                                  source_ns=raw.source_ns, seq=raw.seq, cut=cut)
+                                         source_ns=raw.source_ns, seq=raw.seq, cut=cut)
         return self._corrected
 
     def snapshot(self, t: float, max_samples: int = 16) -> tuple[list[OdometrySample], OdometrySample | None]:
@@ -281,14 +282,14 @@ class OdometryFusion:
         """Seed a fresh buffer with a snapshot taken before a restart, so odometry arriving after it (the same
         epoch: the MCU kept counting) reaches back to the saved pose. False (nothing changed) when this
         fusion has samples already or the snapshot is not one epoch in time order."""
-        ordered = all(a.t < b.t for a, b in zip(samples, samples[1:]))
+        ordered = all(a.t < b.t for a, b in pairwise(samples))
         if self.buffer.samples or self._last is not None or not samples or not ordered or \
                 any(s.epoch != last.epoch for s in samples):
             return False
         for sample in samples:
             self.buffer.add(sample)
-        # A restart can take longer than buffer_s (a loaded Jetson: 3 s from the kill to the first frame): the
-        # snapshot must outlive the first frames after it.
+        # A restart can take longer than buffer_s (on a loaded 2-core box 2.4-3.7 s passed from the saved pose to
+        # the first frame after the kill): the snapshot must outlive the first frames after it.
         self.buffer.hold_until = last.t + self.config.resume_hold_s
         self._last, self._corrected = last, samples[-1]
         # The speed before the restart is not known: the first step after it (the whole gap) is not slip-limited.

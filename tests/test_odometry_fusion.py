@@ -28,8 +28,8 @@ def test_buffer_gives_body_frame_motion_between_two_times() -> None:
     for i in range(101):  # an arc: 1 m/s, 0.5 rad/s, dead-reckoned exactly
         t = i * 0.01
         yaw = 0.5 * t
-        buffer.add(OdometrySample(t=t, epoch=0, pose=(2 * math.sin(yaw), 2 * (1 - math.cos(yaw)), yaw), slip=False,
-                           source_ns=i, seq=i))
+        buffer.add(OdometrySample(t=t, epoch=0, pose=(2 * math.sin(yaw), 2 * (1 - math.cos(yaw)), yaw),
+                                  slip=False, source_ns=i, seq=i))
     delta = buffer.delta(0.305, 0.805, max_extrapolate_s=0.0)
     assert delta is not None
     turn = 0.5 * 0.5

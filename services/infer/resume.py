@@ -37,7 +37,7 @@ class SavedOdometry(BaseModel):
     cut: tuple[float, float] = (0.0, 0.0)
 
     @classmethod
-    def of(cls, sample: OdometrySample) -> "SavedOdometry":
+    def of(cls, sample: OdometrySample) -> SavedOdometry:
         return cls(**sample.__dict__)
 
     def sample(self) -> OdometrySample:
