@@ -140,6 +140,10 @@ yaw_deg = {math.degrees(TRUTH[2])}
         client.wait_for("infer/health", lambda h: h.detail.get("fusion.odometry_buffered", 0) >= 3, timeout=60)
         pose, seq = first_valid_pose(client, frames, 1, most=10)
         assert pose.header.valid, pose.reason
+        # The stage saves a valid frame's pose after publishing it; the next frame's pose comes from the same
+        # worker, so once it is here the save is done.
+        assert request_pose(client, frames, seq).header.valid
+        seq += 1
     finally:
         infer.kill()
     saved = json.loads((tmp_path / "store.last-pose.json").read_text())
