@@ -82,6 +82,10 @@ enabled = true
         assert math.hypot(bridged.x - seen.x, bridged.y - seen.y) < 0.01
         assert bridged.covariance[0] >= seen.covariance[0]  # the prediction is less certain than the fix
 
+        # The stage keeps only the newest odometry sample not yet read: stop the stream, or a good sample published
+        # after the bad one could replace it before the worker reads it (seen on a loaded machine).
+        stop.set()
+        streamer.join(2.0)
         bad = _odometry(10_000)
         bad.odom_x_m = math.nan
         client.put_raw("shooter_bridge/odometry", codec.encode(bad))
