@@ -256,7 +256,7 @@ class GeometricLocalizer:
             if innov.chi2 <= mcfg.gate_chi2:
                 new = motion.update(pred, res.pose, r, innov)
                 fused = self._fused(res, new)
-                new = replace(new, weak=0 if fused.valid else pred.weak + 1)
+                weak = 0 if fused.valid else pred.weak + 1
                 drifted = pred.position_std_m > mcfg.regain_std_m or (
                     mcfg.regain_weak_frames > 0 and pred.weak >= mcfg.regain_weak_frames)
                 if fused.valid and drifted:
@@ -267,7 +267,7 @@ class GeometricLocalizer:
                     if guard_regain and mcfg.regain_weak_frames > 0:
                         # Re-anchored, not yet regained: one more frame without a valid fit makes it drifted again
                         # (a re-anchoring fit 0.3 m off, three trackable-only frames, then a valid fit 0.78 m off).
-                        new = replace(new, weak=mcfg.regain_weak_frames - 1)
+                        weak = mcfg.regain_weak_frames - 1
                     if guard_regain and self._regain_rival(hits, res.fit) is not None:
                         # ... unless the view fits as well elsewhere: then the track stays drifted, and only a
                         # re-anchoring view with no such rival brings validity back (robocon2025 twin, vision only:
@@ -275,8 +275,8 @@ class GeometricLocalizer:
                         # with a 3 cm std, a start turned 0.35 rad fitted at the same cost 0.6 m away, and the next
                         # frame, of 13 hits, agreed with the wrong one: a valid pose 0.87 m off).
                         fused = self._status(fused, "ambiguous")
-                        new = replace(new, weak=max(pred.weak + 1, mcfg.regain_weak_frames))
-                return TrackStep(fused, new)
+                        weak = max(pred.weak + 1, mcfg.regain_weak_frames)
+                return TrackStep(fused, replace(new, weak=weak))
             if res.valid:
                 # The evidence disagrees with the track: restart the track there, but one frame is not
                 # enough to answer valid from (a single bad fit at a line end jumped 0.4-0.6 m on the

@@ -26,6 +26,12 @@ from courtloc.localizer.odometry_fusion import OdometryFusion, fused_track
 from courtloc.localizer.predictor import Prediction, Predictor
 
 
+def ages_agree(clock_age_s: float, wall_age_s: float, tolerance_s: float) -> bool:
+    """Whether an age measured on a monotonic clock is the wall clock's, within `tolerance_s`: a negative or different
+    one means that clock restarted since (a reboot, another host's clock) and its old stamps mean nothing now."""
+    return clock_age_s >= 0 and abs(clock_age_s - wall_age_s) <= tolerance_s
+
+
 @dataclass
 class Tracker:
     max_lost_frames: int = 10
@@ -103,7 +109,7 @@ class Tracker:
                 and isinstance(self.motion, acquire.Acquiring) and self.motion.prior is not None:
             age = max(0.0, (capture_wall_ns - self._pending_wall_ns) * 1e-9)
             prior = self.motion.prior
-            if prior.t is not None and (t is None or t < prior.t or abs((t - prior.t) - age) > self.clock_agreement_s):
+            if prior.t is not None and (t is None or not ages_agree(t - prior.t, age, self.clock_agreement_s)):
                 prior = replace(prior, t=None)
             self.motion = replace(self.motion, prior=replace(prior, age_s=age))
         self._pending_wall_ns = None

@@ -20,7 +20,7 @@ from courtloc.localizer.manifest import ManifestError, read_manifest
 from courtloc.localizer.odometry_fusion import OdometryFusion, pose_covariance
 from courtloc.localizer.package import bundled_package
 from courtloc.localizer.predictor import GeometricPredictor
-from courtloc.localizer.tracking import Tracker
+from courtloc.localizer.tracking import Tracker, ages_agree
 from courtloc.models import bundled_package as bundled_default
 from courtloc.services.infer.config import InferConfig, StartConfig
 from courtloc.services.infer.engine import LoadedModel, load_model
@@ -92,9 +92,7 @@ class InferService(Service):
         samples, last = saved.odometry_snapshot()
         if last is None or self.fusion is None:
             return False
-        mono_age = time.monotonic() - last.t
-        wall_age = (time.time_ns() - saved.wall_ns) * 1e-9
-        if mono_age < 0 or abs(mono_age - wall_age) > self.tracker.clock_agreement_s:
+        if not ages_agree(time.monotonic() - last.t, saved.age_s(), self.tracker.clock_agreement_s):
             self.log.info("not carrying the saved pose by odometry: the monotonic clock restarted")
             return False
         return self.fusion.resume(samples, last)
