@@ -113,6 +113,8 @@ class AcquireConfig(BaseModel):
     merge_m: float = Field(0.3, gt=0, description="hypotheses closer than this (and merge_rad) are one")
     merge_rad: float = Field(0.15, gt=0)
     drop_lost_frames: int = Field(3, ge=1, description="a hypothesis without a usable fit this many frames dies")
+    tie_drop_frames: int = Field(3, ge=1, description="a hypothesis whose fit costs more than the tie of the best "
+                                 "(tie_ratio, tie_abs) this many frames in a row dies; until then it decides nothing")
     confirm_frames: int = Field(3, ge=1, description="frames a decided hypothesis must answer valid before the "
                                 "track starts")
     confirm_frames_tight: int = Field(3, ge=1, description="... when a pose prior within tight_prior_m decided")

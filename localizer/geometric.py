@@ -300,7 +300,7 @@ class GeometricLocalizer:
                 if not h.pinned and step.result.valid:
                     sighting = acquire.Sighting(step.state.pose.copy(), t, step.state.cov[:2, :2].copy())
                 live.append((step.result, replace(h, state=step.state, pinned=h.pinned or step.result.valid,
-                                                  pinned_sighting=sighting)))
+                                                  pinned_sighting=sighting, frames=h.frames + 1)))
         since = state.since_search + 1
         searched: FitResult | None = None
         unpinned_cost: float | None = None
@@ -311,11 +311,11 @@ class GeometricLocalizer:
             live += found
             since = 0
         live = self._merge(self._with_twins(live))
-        fitted = [res.fit.cost for res, h in live if h.state.lost == 0]
-        if fitted:  # a hypothesis fitting clearly worse than the best one this frame dies
-            limit = min(fitted) * acfg.tie_ratio + acfg.tie_abs
-            live = [(res, h) for res, h in live if h.state.lost > 0 or res.fit.cost <= limit]
-        live = live[:acfg.max_hypotheses]
+        behind = acquire.frames_behind([h for _, h in live], [res.fit.cost for res, _ in live], acfg)
+        live = [(res, replace(h, behind=b)) for (res, h), b in zip(live, behind) if b < acfg.tie_drop_frames]
+        kept = acquire.within_cap([h for _, h in live], acfg)
+        overflow = any(h.behind == 0 for i, (_, h) in enumerate(live) if i not in kept)
+        live = [live[i] for i in kept]
         points = marks() if self.mark_map is not None and marks is not None else None
         if points is not None and len(points):
             live = [(res, replace(h, marks=tuple(a + b for a, b in zip(h.marks, self.mark_map.evidence(h.pose, points)))))
@@ -343,6 +343,9 @@ class GeometricLocalizer:
             if not decision.explained:
                 prior = None
                 decision = acquire.decide(list(hypotheses), None, half, t_eval, acfg, cfg.centre_margin_m, court_marks)
+        if overflow:
+            # A candidate this view fits was cut: none of those kept is the only explanation of it.
+            decision = replace(decision, index=None)
         poses = [h.pose for h in hypotheses]
         if decision.index is None:
             best = self._nearest(list(hypotheses), prior, t)
@@ -410,7 +413,8 @@ class GeometricLocalizer:
                                          mode=res.mode, status=res.status),
                           acquire.Hypothesis(motion.mirrored(h.state), mirror(h.origin), h.origin_t,
                                              None if h.origin_cov is None else h.origin_cov.copy(), h.pinned,
-                                             None if h.pinned_sighting is None else h.pinned_sighting.mirrored(mirror))))
+                                             None if h.pinned_sighting is None else h.pinned_sighting.mirrored(mirror),
+                                             frames=h.frames, behind=h.behind)))
         return live + twins
 
     def _merge(self, live: list[tuple[LocalizeResult, acquire.Hypothesis]]) -> list[tuple[LocalizeResult, acquire.Hypothesis]]:
@@ -421,7 +425,8 @@ class GeometricLocalizer:
             for k, (kept_res, kept) in enumerate(out):
                 if acquire.same_pose(h.pose, kept.pose, acfg):
                     # Both saw the same frames' marks (a twin remade from its mirror has seen none yet).
-                    kept = replace(kept, marks=tuple(max(a, b) for a, b in zip(kept.marks, h.marks)))
+                    kept = replace(kept, marks=tuple(max(a, b) for a, b in zip(kept.marks, h.marks)),
+                                   frames=max(kept.frames, h.frames))
                     out[k] = (kept_res, kept)
                     if h.origin_t is not None and kept.origin_t is not None and h.origin_t < kept.origin_t:
                         # One pose tracked since the earlier sighting: that sighting is its evidence, and so
@@ -430,7 +435,7 @@ class GeometricLocalizer:
                         earliest = min(pinned, key=lambda p: -math.inf if p.t is None else p.t, default=None)
                         out[k] = (kept_res, acquire.Hypothesis(
                             kept.state, h.origin, h.origin_t, h.origin_cov, kept.pinned or h.pinned,
-                            None if h.pinned and h.pinned_sighting is None else earliest, kept.marks))
+                            None if h.pinned and h.pinned_sighting is None else earliest, kept.marks, kept.frames))
                     break
             else:
                 out.append((res, h))

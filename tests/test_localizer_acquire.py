@@ -130,6 +130,50 @@ def test_colour_marks_rule_out_a_twin_and_decide_only_when_they_speak_for_the_su
     assert acquire.decide([_hyp(POSE), its_twin], prior, None, 0.0, CFG, 0.3).index == 0
 
 
+def test_a_hypothesis_fitting_clearly_worse_dies_only_after_tie_drop_frames() -> None:
+    """One frame fitting clearly worse than the best (beyond tie_ratio x + tie_abs) counts; a frame within the tie
+    resets the count; a coasting hypothesis (no usable fit this frame) keeps it."""
+    best, worse = 0.10, 0.10 * CFG.tie_ratio + CFG.tie_abs + 0.01
+    tracked, other = replace(_hyp(POSE), frames=5), _hyp(mirror(POSE))
+    assert acquire.frames_behind([tracked, other], [worse, best], CFG) == [1, 0]
+    # One first seen this frame has no evidence to keep: it is at the limit at once.
+    assert acquire.frames_behind([other, tracked], [worse, best], CFG) == [CFG.tie_drop_frames, 0]
+    behind = replace(tracked, behind=CFG.tie_drop_frames - 1)
+    assert acquire.frames_behind([behind, other], [worse, best], CFG) == [CFG.tie_drop_frames, 0]
+    assert acquire.frames_behind([behind, other], [best, best], CFG) == [0, 0], "back within the tie"
+    coasting = replace(behind, state=replace(behind.state, lost=1))
+    assert acquire.frames_behind([coasting, other], [worse, best], CFG) == [CFG.tie_drop_frames - 1, 0]
+    # Nothing fitted this frame: nothing to compare with, every count stays.
+    lost_other = replace(other, state=replace(other.state, lost=1))
+    assert acquire.frames_behind([coasting, lost_other], [worse, best], CFG) == [CFG.tie_drop_frames - 1, 0]
+
+
+def test_a_hypothesis_behind_the_best_is_no_candidate() -> None:
+    """A hypothesis fitting clearly worse this frame is kept alive (it may fit again) but decides nothing: the prior
+    does not pick it, and it does not stop the one that fits from being the lone candidate."""
+    prior = acquire.Prior("start", pose=POSE, std_m=0.3, yaw_std_rad=0.2, t=0.0)
+    near, far = _hyp(POSE), _hyp(POSE + [3.0, 0.0, 0.0])
+    assert acquire.decide([near, far], prior, None, 0.0, CFG, 0.3).index == 0
+    assert acquire.decide([replace(near, behind=1), far], prior, None, 0.0, CFG, 0.3).index is None
+    assert acquire.decide([replace(near, behind=1), far], None, None, 0.0, CFG, 0.3).index == 1, "lone"
+    assert acquire.decide([near, far], None, None, 0.0, CFG, 0.3).index is None
+
+
+def test_over_the_cap_the_pinned_and_longest_tracked_hypotheses_stay() -> None:
+    """robocon2025 twin, a kidnap: a view of parallel lines fitted ten hypotheses at the same cost, and cutting by
+    cost dropped the one 4 cm from the truth, pinned and tracked 28 frames (2,003 colour marks for it)."""
+    fresh = [replace(_hyp(POSE + [0.5 * k, 0.0, 0.0]), pinned=False) for k in range(CFG.max_hypotheses + 1)]
+    truth = replace(_hyp(POSE - [1.0, 0.0, 0.0]), frames=28, marks=(2003, 0))
+    older = replace(fresh[3], frames=5)
+    behind = replace(_hyp(POSE - [2.0, 0.0, 0.0]), frames=40, behind=1)
+    hypotheses = fresh[:3] + [older] + fresh[4:] + [behind, truth]
+    kept = acquire.within_cap(hypotheses, CFG)
+    assert len(kept) == CFG.max_hypotheses and kept == sorted(kept), "in their order"
+    assert len(hypotheses) - 1 in kept and 3 in kept, "the pinned one, then the longest tracked unpinned one"
+    assert len(hypotheses) - 2 not in kept, "one fitting clearly worse goes first"
+    assert acquire.within_cap(hypotheses[:CFG.max_hypotheses], CFG) == list(range(CFG.max_hypotheses))
+
+
 def test_the_prior_time_is_set_by_the_first_frame_less_its_age() -> None:
     prior = acquire.Prior("track", pose=POSE, age_s=2.0)
     assert prior.at(5.0).t == pytest.approx(3.0) and prior.at(5.0).at(9.0).t == pytest.approx(3.0)
