@@ -247,6 +247,22 @@ def test_start_evidence_for_the_wrong_place_confirms_nothing(drive) -> None:  # 
     assert not any(r.valid for r in results)
 
 
+@pytest.mark.parametrize("cap, decided", [(1, False), (2, True)])
+def test_a_frame_that_cut_a_candidate_decides_nothing(drive, cap: int, decided: bool) -> None:  # noqa: ANN001
+    """On the point-symmetric seed court every view fits its mirror twin exactly: with room for one hypothesis a
+    candidate is cut on every frame, and even a start pose at the truth decides nothing; with room for both it
+    picks the right twin."""
+    from courtloc.localizer.geometric import GeometricLocalizer
+
+    loc, frames, truth = drive
+    config = loc.config.model_copy(update={"acquire": loc.config.acquire.model_copy(update={"max_hypotheses": cap})})
+    capped = GeometricLocalizer(loc.court, loc.camera, config, field=loc.field)
+    prior = acquire.Prior("start", pose=POSE, std_m=0.5, yaw_std_rad=0.35)
+    results = _run(capped, frames, acquire.Acquiring(prior=prior))
+    assert results[-1].valid is decided, [r.status for r in results]
+    assert all(math.hypot(*(r.pose[:2] - p[:2])) < 0.1 for r, p in zip(results, truth) if r.valid)
+
+
 def test_a_prior_too_vague_to_decide_does_not_stop_the_marks() -> None:
     """The robocon2025 twin (fast walk): after a lost track, a hypothesis 2-5 cm from the truth stayed undecided
     for 2.5 s, its twin contradicted by over a thousand marks, because the lost track's prior explained it at
