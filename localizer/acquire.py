@@ -198,6 +198,11 @@ def colour_verdict(hypothesis: Hypothesis, cfg: AcquireConfig) -> Literal["for",
     return ""
 
 
+def tie_limit(best_cost: float, cfg: AcquireConfig) -> float:
+    """The highest cost that still ties with a fit of `best_cost` (`tie_ratio` x + `tie_abs`)."""
+    return best_cost * cfg.tie_ratio + cfg.tie_abs
+
+
 def frames_behind(hypotheses: list[Hypothesis], costs: list[float], cfg: AcquireConfig) -> list[int]:
     """Each hypothesis's frames in a row whose fit (robust cost `costs`) fitted clearly worse than the best fitted
     one's (beyond `tie_ratio` x + `tie_abs`); one coasting (no usable fit) keeps its count. The caller drops those
@@ -207,7 +212,7 @@ def frames_behind(hypotheses: list[Hypothesis], costs: list[float], cfg: Acquire
     fitted = [c for h, c in zip(hypotheses, costs) if h.state.lost == 0]
     if not fitted:
         return [h.behind for h in hypotheses]
-    limit = min(fitted) * cfg.tie_ratio + cfg.tie_abs
+    limit = tie_limit(min(fitted), cfg)
 
     def count(h: Hypothesis, cost: float) -> int:
         if h.state.lost > 0:

@@ -202,7 +202,7 @@ class GeometricLocalizer:
         if not cfg.regain_yaw_probes_rad:
             return None
         starts = [fit.pose + (0.0, 0.0, sign * d) for d in cfg.regain_yaw_probes_rad for sign in (1, -1)]
-        limit = fit.cost * acfg.tie_ratio + acfg.tie_abs
+        limit = acquire.tie_limit(fit.cost, acfg)
         enough = max(fit.n_inliers // 2, cfg.quality.min_inliers)
         for res in self._fit_starts(hits, np.array(starts)):
             if not acquire.same_pose(res.pose, fit.pose, acfg) and res.cost <= limit and \
@@ -391,7 +391,7 @@ class GeometricLocalizer:
                     key=lambda f: f.cost)
         if not any(f.valid for f in ok):
             return [], lowest, None
-        limit = ok[0].cost * acfg.tie_ratio + acfg.tie_abs
+        limit = acquire.tie_limit(ok[0].cost, acfg)
         ok = [f for f in ok if f.cost <= limit][:acfg.max_hypotheses]
         twins = self._fit_starts(hits, np.array([mirror(f.pose) for f in ok]))
         fits = sorted([f for f in ok + twins if f.cost <= limit and (f.valid or f.inlier_ratio >= 0.5)],
@@ -433,9 +433,10 @@ class GeometricLocalizer:
                         # is the earliest pinned one of either when that sighting was not pinned.
                         pinned = [p for p in (h.earliest_pinned(), kept.earliest_pinned()) if p is not None]
                         earliest = min(pinned, key=lambda p: -math.inf if p.t is None else p.t, default=None)
-                        out[k] = (kept_res, acquire.Hypothesis(
-                            kept.state, h.origin, h.origin_t, h.origin_cov, kept.pinned or h.pinned,
-                            None if h.pinned and h.pinned_sighting is None else earliest, kept.marks, kept.frames))
+                        out[k] = (kept_res, replace(
+                            kept, origin=h.origin, origin_t=h.origin_t, origin_cov=h.origin_cov,
+                            pinned=kept.pinned or h.pinned,
+                            pinned_sighting=None if h.pinned and h.pinned_sighting is None else earliest))
                     break
             else:
                 out.append((res, h))
