@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from courtloc.cliargs import add_json_argument, nonnegative_int, positive_int
+from courtloc.cliargs import add_json_argument, nonnegative_float, nonnegative_int, positive_int
 from courtloc.lab.eval import default_model_path
 from courtloc.localizer import motion
 from courtloc.localizer.fit import kernel_active, kernel_enabled
@@ -38,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeats", type=positive_int, default=20, help="tracking runs per frame")
     parser.add_argument("--cold-repeats", type=nonnegative_int, default=2, help="cold-start runs per frame")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--idle-ms", type=nonnegative_float, default=0.0,
+                        help="sleep this long before each timed tracking call, as a stage idles between frames "
+                             "(33 at 30 fps): what the caches lose while idle shows in the times")
     parser.add_argument("--compare-sequential", action="store_true",
                         help="also time the one-start-at-a-time fit path side by side (same frames, interleaved)")
     add_json_argument(parser, "the result")
@@ -88,6 +91,10 @@ def run(args: argparse.Namespace) -> int:
                                                  "filtered")}
     errors, path_diff, seq_diff = [], [], []
 
+    def idle() -> None:
+        if args.idle_ms > 0:
+            time.sleep(args.idle_ms / 1e3)
+
     def numpy_predict(*a, **kw):
         with kernel_enabled(False):
             return predictor.predict(*a, **kw)
@@ -98,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
         for _ in range(args.repeats):
             # ~0.6 m/s at 10 Hz: the previous answer is a few centimetres and a degree off.
             start = pose + np.array([rng.normal(0, 0.05), rng.normal(0, 0.05), rng.normal(0, 0.02)])
+            idle()
             t, pred = _timed(lambda: predictor.predict(hits, w, h, previous=start))
             ms["track"].append(t)
             errors.append(math.hypot(pred.x - pose[0], pred.y - pose[1]))
@@ -106,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
                 ms["track_numpy"].append(t)
                 path_diff.append(max(abs(ref.x - pred.x), abs(ref.y - pred.y)))
             state = motion.start(start, None, 0.0, motion_cfg)
+            idle()
             ms["filtered"].append(_timed(lambda: predictor.track(hits, w, h, state, motion_cfg.frame_period_s))[0])
             ms["onnx"].append(_timed(lambda: predictor.floor_points(hits))[0])
             if sequential is not None:
@@ -120,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
                 ms["cold_numpy"].append(t)
                 path_diff.append(max(abs(ref.x - pred.x), abs(ref.y - pred.y)))
     result = {
-        "bench": "localize", "package": str(package), "frames": len(frames),
+        "bench": "localize", "package": str(package), "frames": len(frames), "idle_ms": args.idle_ms,
         "hits_per_frame_median": float(np.median([len(f[1]) for f in frames])),
         "compiled_kernel": compiled,
         "tracking": _stats(ms["track"]), "tracking_filtered": _stats(ms["filtered"]), "cold_start": _stats(ms["cold"]),

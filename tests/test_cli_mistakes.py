@@ -29,6 +29,7 @@ MISTAKES: list[tuple[str, str]] = [
     ("replay {text} --info", "MCAP"),
     ("replay {cut} --info", "MCAP"),
     ("bench localize --package {notonnx}", "ONNX"),
+    ("bench localize --idle-ms -1", "--idle-ms"),
     ("eval --data {data} --model {notonnx}", "ONNX"),
     ("run camera --config {text}", "README"),
     ("up --config {tmp}/missing.toml", "missing.toml"),
