@@ -88,6 +88,9 @@ class FusionConfig(BaseModel):
                                         "prediction (min_explained)")
     min_explained: float = Field(0.5, ge=0, le=1, description="a frame of few hits is blind only while this "
                                  "share of them lies on paint at the predicted pose (3 sigma of its covariance)")
+    edge_margin_m: float = Field(0.3, ge=0, description="hits this close to the court's outer edge at the predicted "
+                                 "pose neither explain nor contradict it: a brightly lit floor shows its own edge "
+                                 "there, where the court model has no paint")
     doubt_fixes: int = Field(2, ge=1, description="after a frame the prediction cannot explain (a contradiction, a "
                              "valid fit elsewhere) fixes in a row before poses are valid again; blind frames between "
                              "are not")
@@ -425,9 +428,12 @@ class OdometryFusion:
         return motion.MotionState(mean=state.mean, cov=state.cov, t=state.t, lost=max(state.lost, cfg.max_lost_frames))
 
     def after_frame(self, valid: bool, fused_by_vision: bool, state: Optional[motion.MotionState],
-                    t: Optional[float], n_hits: int = 0, contradicted: bool = False) -> tuple[bool, str]:
+                    t: Optional[float], n_hits: int = 0, contradicted: bool = False,
+                    beyond_edge: bool = False) -> tuple[bool, str]:
         """Learn from a vision fix; decide whether a frame without one may be valid on odometry alone
-        (`contradicted`: a frame of few hits the prediction cannot explain, see `contradicts`).
+        (`n_hits`: the hits that count as lines in view; `contradicted`: a frame of few hits the prediction
+        cannot explain, see `contradicts`; `beyond_edge`: at least `min_hits_to_contradict` hits off paint along
+        the court's outer edge at the prediction, which the court model can neither explain nor hold against it).
 
         Returns (valid, reason): the frame's validity after fusion and, when odometry decided, why."""
         if t is None or state is None:
@@ -467,6 +473,11 @@ class OdometryFusion:
             self.counts["contradicted"] += 1
             self.doubt = True
             return False, "odometry_unconfirmed"
+        if beyond_edge:
+            # White along the court's edge: a floor lit brighter than the mask's threshold, or lines seen from
+            # elsewhere. Not a frame to be valid on, nor evidence of a move (no doubt).
+            self.counts["beyond_edge"] += 1
+            return False, "odometry_unconfirmed"
         if self.doubt:
             # Blind after a view the prediction could not explain: the robocon2025 twin's kidnap on its loop (fused):
             # after contradicted frames one fit near the old place was a fix (a view from 1.9 m away that fits
@@ -486,11 +497,13 @@ class OdometryFusion:
         """Too few hits to count as lines in view, enough to contradict the prediction."""
         return self.config.min_hits_to_contradict <= n_hits < self.config.min_hits_in_view
 
-    def contradicts(self, n_hits: int, explained: float) -> bool:
-        """Whether a frame of few hits (`explained`: their share on paint at the odometry prediction) speaks
-        against the prediction. The robocon2025 twin, robot teleported into a view of 14-30 hits (fewer than
-        `min_hits_in_view`): those frames were bridged as blind, valid on odometry 3.5 m from the robot."""
-        return self.few_hits(n_hits) and explained < self.config.min_explained
+    def contradicts(self, on_paint: int, judged: int) -> bool:
+        """Whether a frame of few hits speaks against the prediction: of the hits judged at the odometry
+        prediction (`judged`: clear of the court's outer edge; too few to count as lines in view, enough
+        to say something) less than `min_explained` lie on paint there (`on_paint`). The robocon2025 twin, robot
+        teleported into a view of 14-30 hits: those frames were bridged as blind, valid on odometry 3.5 m from
+        the robot."""
+        return self.few_hits(judged) and on_paint < self.config.min_explained * judged
 
     def note_acquired(self, state: motion.MotionState, t: Optional[float], n_hits: int) -> None:
         """The localizer decided its pose by acquisition: a vision fix on its own evidence, which ends any
@@ -501,11 +514,10 @@ class OdometryFusion:
         self.after_frame(True, True, state, t, n_hits)
 
     def note_vision(self, before: Optional[motion.MotionState], after: Optional[motion.MotionState], n_hits: int,
-                    fused: bool) -> None:
+                    fused: bool, contradicted: bool = False) -> None:
         """Suspect a kidnap when vision and odometry disagree: a fix that restarted the track far from the
-        odometry prediction, or `disagree_frames` frames in a row with lines in view and no fix. (Frames of
-        few hits the prediction contradicts are invalid but do not count here: on the robocon2025 twin they
-        also made `fast` search the court when its track was right, 82-85 % valid against 89 %.)"""
+        odometry prediction, or `disagree_frames` frames in a row with lines in view and no fix, or with few
+        hits that contradict the prediction (`contradicts`)."""
         if self.suspect or before is None or self._predicted_t is None or before.t != self._predicted_t:
             return  # while suspected, recovery is counted by after_frame
         if fused and after is not None:
@@ -515,7 +527,7 @@ class OdometryFusion:
             if float(nu @ np.linalg.solve(s, nu)) > self.config.disagree_chi2:
                 self._suspect("restart")
             return
-        if n_hits >= self.config.min_hits_in_view:
+        if n_hits >= self.config.min_hits_in_view or contradicted:
             self._disagreeing += 1
             if self._disagreeing >= self.config.disagree_frames:
                 self._suspect("no_fit_in_view")
@@ -600,14 +612,19 @@ def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, w
         return pred, after, ""
     # lost == 0 after the step: a fit was fused, or a valid one (re)started the track.
     fused_by_vision = after is not None and after.lost == 0
-    fusion.note_vision(before, after, len(hits), fused_by_vision)
-    contradicted = False
-    if after is not None and not fused_by_vision and fusion._predicted_t == t and fusion.few_hits(len(hits)):
-        # The hits are projected a second time (the tracker's projection stays inside it): only on these frames.
-        explained = predictor.localizer.explained_fraction(predictor.projected_hits(hits), after.mean[:3],
-                                                           after.cov[:3, :3])
-        contradicted = fusion.contradicts(len(hits), explained)
-    valid, reason = fusion.after_frame(pred.valid, fused_by_vision, after, t, len(hits), contradicted)
+    in_view, contradicted, beyond_edge = len(hits), False, False
+    if after is not None and not fused_by_vision and fusion._predicted_t == t \
+            and len(hits) >= fusion.config.min_hits_to_contradict:
+        # Lines in view are the hits clear of the court's outer edge at the prediction; those along it say
+        # nothing for or against it (`GeometricLocalizer.paint_evidence`). The hits are projected a second time
+        # (the tracker's projection stays inside it): only on frames without a fix.
+        evidence = predictor.localizer.paint_evidence(predictor.projected_hits(hits), after.mean[:3],
+                                                      after.cov[:3, :3], fusion.config.edge_margin_m)
+        in_view = evidence.judged
+        contradicted = fusion.contradicts(evidence.on_paint, evidence.judged)
+        beyond_edge = evidence.edge_off_paint >= fusion.config.min_hits_to_contradict
+    fusion.note_vision(before, after, in_view, fused_by_vision, contradicted)
+    valid, reason = fusion.after_frame(pred.valid, fused_by_vision, after, t, in_view, contradicted, beyond_edge)
     if after is not None and fusion._predicted_t == t and not pred.valid and not fusion.suspect:
         # No usable fit: the answer is the odometry prediction (the filter's state), valid or not.
         x, y, yaw = (float(v) for v in after.mean[:3])

@@ -223,10 +223,16 @@ def test_a_track_slid_along_a_weak_direction_meets_its_rival_instead_of_answerin
 
 
 def test_few_hits_explained_at_the_true_pose_contradict_a_pose_metres_away(twin, twin_hits):
-    """`explained_fraction`: the share of a frame's hits on paint at a given pose, unfitted. A handful of
-    hits (too few to fit) still tells the pose they were seen from from most poses 3.5 m away (the seed court's
+    """`paint_evidence`: which of a frame's hits lie on paint at a given pose, unfitted. A handful of hits
+    (too few to fit) still tells the pose they were seen from from most poses 3.5 m away (the seed court's
     parallel lines explain up to about half of them along some directions)."""
     court, camera, loc = twin
+
+    def explained_fraction(projected, pose, cov) -> float:  # noqa: ANN001
+        evidence = loc.paint_evidence(projected, pose, cov)
+        assert evidence.judged + evidence.edge_off_paint <= len(projected)
+        return evidence.on_paint / evidence.judged if evidence.judged else 1.0
+
     projector = FloorProjector(camera, loc.config.edge_offset_px, loc.config.max_range_m)
     tight = np.diag([0.01 ** 2, 0.01 ** 2, math.radians(0.2) ** 2])
     odometry_like = np.diag([0.05 ** 2, 0.05 ** 2, math.radians(1.0) ** 2])
@@ -235,15 +241,15 @@ def test_few_hits_explained_at_the_true_pose_contradict_a_pose_metres_away(twin,
         few = hits[np.linspace(0, len(hits) - 1, 16).astype(int)]  # 16 hits spread over the frame
         projected = projector.project(few[:, 0], few[:, 1])
         true = np.array(pose)
-        assert loc.explained_fraction(projected, true, tight) >= 0.9, pose
-        moved = [loc.explained_fraction(projected, true + (3.5 * math.cos(a), 3.5 * math.sin(a), 0.0), odometry_like)
+        assert explained_fraction(projected, true, tight) >= 0.9, pose
+        moved = [explained_fraction(projected, true + (3.5 * math.cos(a), 3.5 * math.sin(a), 0.0), odometry_like)
                  for a in np.arange(12) * math.pi / 6]
         assert np.median(moved) < 0.5 and max(moved) < 0.9, (pose, moved)
         # The tolerance is the pose's own: 0.25 m off is explained in full only when its covariance allows it.
         near = true + (0.25, 0.0, 0.0)
         wide = np.diag([0.12 ** 2, 0.12 ** 2, math.radians(0.5) ** 2])
-        assert loc.explained_fraction(projected, near, tight) < 0.9 <= loc.explained_fraction(projected, near, wide)
-    assert loc.explained_fraction(projector.project(np.zeros(0), np.zeros(0)), np.zeros(3), tight) == 1.0
+        assert explained_fraction(projected, near, tight) < 0.9 <= explained_fraction(projected, near, wide)
+    assert tuple(loc.paint_evidence(projector.project(np.zeros(0), np.zeros(0)), np.zeros(3), tight)) == (0, 0, 0)
 
 
 def test_a_view_of_one_arc_pins_nothing_along_it() -> None:

@@ -224,8 +224,9 @@ def test_a_frame_of_few_hits_the_prediction_contradicts_is_not_bridged() -> None
     assert fusion.after_frame(True, True, state, 0.1, n_hits=60) == (True, "")  # a vision fix
     predicted = fusion.before_frame(state, 0.2)
     assert predicted is not None and predicted.t == 0.2
-    assert not fusion.contradicts(14, explained=0.5) and not fusion.contradicts(7, explained=0.0)
-    assert fusion.contradicts(14, explained=0.49)
+    assert not fusion.contradicts(on_paint=7, judged=14) and not fusion.contradicts(on_paint=0, judged=7)
+    assert fusion.contradicts(on_paint=6, judged=14)
+    assert not fusion.contradicts(on_paint=0, judged=40)  # lines in view: not a frame of few hits
     assert fusion.after_frame(False, False, predicted, 0.2, 14, contradicted=False) == (True, "")
     assert fusion.after_frame(False, False, predicted, 0.2, 14, contradicted=True) == (False, "odometry_unconfirmed")
     assert fusion.counts["contradicted"] == 1 and fusion.counts["valid_on_odometry"] == 1
@@ -268,10 +269,74 @@ def test_a_robot_moved_into_a_view_of_few_hits_is_not_valid_on_odometry(robocon2
     assert seen.valid and math.hypot(seen.x - pose[0], seen.y - pose[1]) < 0.05
     for moved in (tracked + (0.0, -3.5, 0.0), tracked + (-3.5, 0.0, 0.0)):
         (answer, _, reason), fusion = frame_from(moved, FusionConfig(enabled=True))
-        assert not answer.valid and reason == "odometry_unconfirmed" and fusion.counts["contradicted"] == 1
-        # Without the rule (nothing contradicts) the frame was bridged as blind: valid 3.5 m off.
-        (bridged, _, _), _ = frame_from(moved, FusionConfig(enabled=True, min_explained=0.0))
+        # Contradicted where the hits land on the court at the odometry's pose, unknown (no paint to judge them
+        # by) where they land past its edge: invalid either way.
+        assert not answer.valid and reason == "odometry_unconfirmed"
+        assert fusion.counts["contradicted"] + fusion.counts["beyond_edge"] == 1
+        # Without the rules (16 hits too few to say anything) the frame was bridged as blind: valid 3.5 m off.
+        (bridged, _, _), _ = frame_from(moved, FusionConfig(enabled=True, min_hits_to_contradict=40))
         assert bridged.valid and math.hypot(bridged.x - moved[0], bridged.y - moved[1]) > 3.0
+
+
+def test_frames_of_few_hits_that_contradict_the_prediction_in_a_row_are_a_suspected_kidnap(robocon2025_twin) -> None:
+    """A robot moved 3.5 m into views of 16 hits: each frame is contradicted (invalid), and `disagree_frames`
+    of them in a row make the kidnap suspicion that searches the whole court, as frames with lines in view and
+    no fix do (the robocon2025 twin's second kidnap ran 2.5 s of contradicted frames before a view of 40 hits
+    made the suspicion)."""
+    from courtloc.localizer.odometry_fusion import fused_track
+    from courtloc.sim.edges import scan_hits
+
+    predictor, renderer = robocon2025_twin
+    tracked, moved = np.array([3.0, 1.0, 0.0]), np.array([-0.5, 1.0, 0.0])
+    hits = scan_hits(renderer.render(tuple(moved)))
+    few = hits[np.linspace(0, len(hits) - 1, 16).astype(int)]
+    config = FusionConfig(enabled=True)
+    fusion = OdometryFusion(config)
+    for i in range(60):  # standing still: the odometry predicts the tracked pose
+        fusion.offer(odometry(i * 0.01, 0.0, seq=i), i * 0.01)
+    state = motion.start(tracked, np.diag([1e-4, 1e-4, 1e-5]), 0.1, predictor.localizer.config.motion)
+    fusion.last_fix = (0.1, tracked)
+    for i in range(config.disagree_frames):
+        assert not fusion.suspect
+        answer, state, _ = fused_track(predictor, fusion, few, 640, 480, state, 0.1 + (i + 1) / 30)
+        assert not answer.valid
+    assert fusion.counts["contradicted"] == config.disagree_frames - 1 and fusion.suspect
+    assert fusion.counts["suspect_no_fit_in_view"] == 1
+
+
+def test_the_floors_own_edge_under_bright_light_is_no_evidence_against_odometry(robocon2025_twin) -> None:
+    """The robocon2025 floor is a light grey: lit brighter (gain 1.2, +20), it passes the white mask, its lines
+    vanish in it and the scan sees the floor's outer edge (y = 4 m), where the court has no paint. Seen from
+    where the odometry says the robot is, those hits are neither explained nor a contradiction: the frames are
+    not valid (the court model cannot say), but they put the track in no doubt and suspect no kidnap, so the
+    blind frames after them stay valid on odometry. (Judged as paint evidence they made the twin's `fast`
+    run invalid for ~2 s at a time, the odometry pose 1-2 cm from the truth.)"""
+    from courtloc.localizer.odometry_fusion import fused_track
+    from courtloc.sim.edges import scan_hits
+    from courtloc.sim.render import RenderOptions
+
+    predictor, renderer = robocon2025_twin
+    pose = np.array([2.0, 1.0, math.pi / 2 + 0.5])  # looking at the +y edge, 3 m away
+    bright = RenderOptions(exposure_gain=(1.2, 1.2), brightness_offset=(20.0, 20.0))
+    hits = scan_hits(renderer.render(tuple(pose), bright))
+    assert len(hits) >= FusionConfig().min_hits_in_view
+    court = predictor.localizer.court
+    projected = predictor.projected_hits(hits)
+    seen = projected.cpoints * complex(math.cos(pose[2]), math.sin(pose[2])) + complex(pose[0], pose[1])
+    assert np.all(np.abs(seen.imag - court.area_half_extent_m[1]) < 0.15)  # every hit on the floor's edge
+    fusion = OdometryFusion(FusionConfig(enabled=True))
+    for i in range(60):  # standing still: the odometry predicts the tracked pose
+        fusion.offer(odometry(i * 0.01, 0.0, seq=i), i * 0.01)
+    state = motion.start(pose, np.diag([1e-4, 1e-4, 1e-5]), 0.1, predictor.localizer.config.motion)
+    fusion.last_fix = (0.1, pose)
+    few = hits[np.linspace(0, len(hits) - 1, 16).astype(int)]
+    for i, frame in enumerate((hits, hits, few, hits, hits)):  # more than disagree_frames in a row
+        answer, state, reason = fused_track(predictor, fusion, frame, 640, 480, state, 0.1 + (i + 1) / 30)
+        assert not answer.valid and reason == "odometry_unconfirmed"
+    assert fusion.counts["beyond_edge"] == 5 and not fusion.doubt and not fusion.suspect
+    assert fusion.counts["no_fix_in_view"] == 0 and fusion.counts["contradicted"] == 0
+    blind, _, reason = fused_track(predictor, fusion, hits[:3], 640, 480, state, 0.1 + 6 / 30)
+    assert blind.valid and reason == "" and math.hypot(blind.x - pose[0], blind.y - pose[1]) < 0.05
 
 
 def test_what_the_slip_limit_cuts_widens_the_prediction_along_the_step() -> None:
