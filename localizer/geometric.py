@@ -81,9 +81,9 @@ def _position_cov(fit: FitResult) -> np.ndarray | None:
 class PaintEvidence(NamedTuple):
     """A frame's hits against one pose (`GeometricLocalizer.paint_evidence`)."""
 
-    on_paint: int  # judged hits on a paint edge
-    judged: int  # hits clear of the court's outer edge (inside or beyond it)
-    edge_off_paint: int  # hits along the outer edge, on no paint
+    on_paint: int  # hits on a paint edge
+    judged: int  # all but those of edge_off_paint
+    edge_off_paint: int  # hits along the court's outer edge, on no paint: neither for nor against the pose
 
 
 class GeometricLocalizer:
@@ -134,11 +134,11 @@ class GeometricLocalizer:
         `floor_sigma_m`. The fit's `range_sigma` term is left out on purpose: it would excuse far hits by tens
         of centimetres, and a few far hits are what a view from the wrong place often shows.
 
-        Hits within `edge_margin_m` of the court's outer edge are not judged: a floor lit brighter than the
-        mask's white threshold shows its own edge there, where the court model has no paint (the robocon2025
-        twin under randomised light: hits along y = 4 m; judged, they made a right odometry pose look
-        contradicted). Those off paint are counted apart (`edge_off_paint`). Hits farther out are judged:
-        lines seen from the wrong place land there.
+        Hits within `edge_margin_m` of the court's outer edge and on no paint are not judged: a floor lit
+        brighter than the mask's white threshold shows its own edge there, where the court model has no paint
+        (the robocon2025 twin under randomised light: hits along y = 4 m; judged, they made a right odometry
+        pose look contradicted). They are counted apart (`edge_off_paint`). Hits on paint there, and hits
+        farther out, are judged: lines seen from the wrong place land anywhere.
 
         Few hits cannot be fitted, but they can still contradict a pose: lines seen where the pose has none."""
         if len(hits) == 0:
@@ -162,9 +162,9 @@ class GeometricLocalizer:
         var = (np.maximum(pose_var, 0.0) + (along * hits.sigma[:, 0] * pixel) ** 2
                + (across * hits.sigma[:, 1] * pixel) ** 2 + self.config.fit.floor_sigma_m ** 2)
         on_paint = np.abs(distance) <= 3.0 * np.sqrt(var)
-        return PaintEvidence(on_paint=int(np.count_nonzero(on_paint & ~edge_band)),
-                             judged=int(np.count_nonzero(~edge_band)),
-                             edge_off_paint=int(np.count_nonzero(~on_paint & edge_band)))
+        unknown = edge_band & ~on_paint
+        return PaintEvidence(on_paint=int(np.count_nonzero(on_paint)), judged=int(np.count_nonzero(~unknown)),
+                             edge_off_paint=int(np.count_nonzero(unknown)))
 
     def track(self, hits: ProjectedHits, state: TrackState, t: float | None = None,
               marks: Callable[[], MarkPoints] | None = None) -> TrackStep:

@@ -89,8 +89,8 @@ class FusionConfig(BaseModel):
     min_explained: float = Field(0.5, ge=0, le=1, description="a frame of few hits is blind only while this "
                                  "share of them lies on paint at the predicted pose (3 sigma of its covariance)")
     edge_margin_m: float = Field(0.3, ge=0, description="hits this close to the court's outer edge at the predicted "
-                                 "pose neither explain nor contradict it: a brightly lit floor shows its own edge "
-                                 "there, where the court model has no paint")
+                                 "pose, on no paint, neither explain nor contradict it: a brightly lit floor shows "
+                                 "its own edge there, where the court model has no paint")
     doubt_fixes: int = Field(2, ge=1, description="after a frame the prediction cannot explain (a contradiction, a "
                              "valid fit elsewhere) fixes in a row before poses are valid again; blind frames between "
                              "are not")
@@ -499,10 +499,10 @@ class OdometryFusion:
 
     def contradicts(self, on_paint: int, judged: int) -> bool:
         """Whether a frame of few hits speaks against the prediction: of the hits judged at the odometry
-        prediction (`judged`: clear of the court's outer edge; too few to count as lines in view, enough
-        to say something) less than `min_explained` lie on paint there (`on_paint`). The robocon2025 twin, robot
-        teleported into a view of 14-30 hits: those frames were bridged as blind, valid on odometry 3.5 m from
-        the robot."""
+        prediction (`judged`: all but those on no paint along the court's outer edge; too few to count as lines
+        in view, enough to say something) less than `min_explained` lie on paint there (`on_paint`). The
+        robocon2025 twin, robot teleported into a view of 14-30 hits: those frames were bridged as blind, valid
+        on odometry 3.5 m from the robot."""
         return self.few_hits(judged) and on_paint < self.config.min_explained * judged
 
     def note_acquired(self, state: motion.MotionState, t: Optional[float], n_hits: int) -> None:
@@ -615,8 +615,8 @@ def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, w
     in_view, contradicted, beyond_edge = len(hits), False, False
     if after is not None and not fused_by_vision and fusion._predicted_t == t \
             and len(hits) >= fusion.config.min_hits_to_contradict:
-        # Lines in view are the hits clear of the court's outer edge at the prediction; those along it say
-        # nothing for or against it (`GeometricLocalizer.paint_evidence`). The hits are projected a second time
+        # Lines in view are the hits judged at the prediction; those along the court's outer edge on no paint
+        # say nothing for or against it (`GeometricLocalizer.paint_evidence`). The hits are projected a second time
         # (the tracker's projection stays inside it): only on frames without a fix.
         evidence = predictor.localizer.paint_evidence(predictor.projected_hits(hits), after.mean[:3],
                                                       after.cov[:3, :3], fusion.config.edge_margin_m)

@@ -230,7 +230,7 @@ def test_few_hits_explained_at_the_true_pose_contradict_a_pose_metres_away(twin,
 
     def explained_fraction(projected, pose, cov) -> float:  # noqa: ANN001
         evidence = loc.paint_evidence(projected, pose, cov)
-        assert evidence.judged + evidence.edge_off_paint <= len(projected)
+        assert evidence.judged + evidence.edge_off_paint == len(projected)
         return evidence.on_paint / evidence.judged if evidence.judged else 1.0
 
     projector = FloorProjector(camera, loc.config.edge_offset_px, loc.config.max_range_m)
