@@ -83,7 +83,7 @@ class PaintEvidence(NamedTuple):
 
     on_paint: int  # hits on a paint edge
     judged: int  # all but those of edge_off_paint
-    edge_off_paint: int  # hits along the court's outer edge, on no paint: neither for nor against the pose
+    edge_off_paint: int  # hits on the court's outline, on no paint: neither for nor against the pose
 
 
 class GeometricLocalizer:
@@ -127,18 +127,17 @@ class GeometricLocalizer:
         return self._finish(best, "global", None if hint is None else np.asarray(hint, np.float64))
 
     def paint_evidence(self, hits: ProjectedHits, pose: np.ndarray, pose_cov: np.ndarray,
-                       edge_margin_m: float = 0.0) -> "PaintEvidence":
-        """What a frame's hits say of `pose` as it is (no fit): which lie on a paint edge. A hit is on a paint
-        edge within three standard deviations across the nearest edge of `pose_cov` ((x, y, yaw) covariance)
-        through the hit's lever arm, its pixel noise split along / across the view as the fit splits it, and
-        `floor_sigma_m`. The fit's `range_sigma` term is left out on purpose: it would excuse far hits by tens
-        of centimetres, and a few far hits are what a view from the wrong place often shows.
+                       outline: bool = True) -> "PaintEvidence":
+        """What a frame's hits say of `pose` as it is (no fit): which lie on a paint edge. A hit is on an edge
+        within three standard deviations across it: those of `pose_cov` ((x, y, yaw) covariance) through the hit's
+        lever arm, its pixel noise split along / across the view as the fit splits it, and `floor_sigma_m`. The
+        fit's `range_sigma` term is left out on purpose: it would excuse far hits by tens of centimetres, and a
+        few far hits are what a view from the wrong place often shows.
 
-        Hits within `edge_margin_m` of the court's outer edge and on no paint are not judged: a floor lit
-        brighter than the mask's white threshold shows its own edge there, where the court model has no paint
-        (the robocon2025 twin under randomised light: hits along y = 4 m; judged, they made a right odometry
-        pose look contradicted). They are counted apart (`edge_off_paint`). Hits on paint there, and hits
-        farther out, are judged: lines seen from the wrong place land anywhere.
+        With `outline`, the court's outer edge is an edge that may or may not be there: a floor lit brighter than
+        the mask's white threshold shows it, where the court model has no paint (the robocon2025 twin under
+        randomised light: hits along y = 4 m; judged, they made a right odometry pose look contradicted). Hits
+        on it and on no paint are not judged, only counted (`edge_off_paint`).
 
         Few hits cannot be fitted, but they can still contradict a pose: lines seen where the pose has none."""
         if len(hits) == 0:
@@ -147,24 +146,36 @@ class GeometricLocalizer:
         rot = complex(math.cos(yaw), math.sin(yaw))
         lever = hits.cpoints * rot
         court = lever + complex(x, y)
-        edge_band = ~self.court.contains(court.real, court.imag, edge_margin_m) \
-            & self.court.contains(court.real, court.imag, -edge_margin_m)
+        cov = np.asarray(pose_cov, np.float64)[:3, :3]
         distance, gx, gy = self.field.lookup(court.real, court.imag)
         norm = np.hypot(gx, gy) + 1e-12
-        nx, ny = gx / norm, gy / norm
+        on_paint = np.abs(distance) <= self._three_sigma(hits, lever, rot, gx / norm, gy / norm, cov)
+        if not outline:
+            return PaintEvidence(int(np.count_nonzero(on_paint)), len(hits), 0)
+        # Distance to the nearer of the outline's side (|y| = hy) and end (|x| = hx) lines, and that line's normal.
+        hx, hy = self.court.area_half_extent_m
+        qx, qy = np.abs(court.real) - hx, np.abs(court.imag) - hy
+        side = qy > qx
+        nx = np.where(side, 0.0, np.sign(court.real))
+        ny = np.where(side, np.sign(court.imag), 0.0)
+        on_outline = np.abs(np.where(side, qy, qx)) <= self._three_sigma(hits, lever, rot, nx, ny, cov)
+        unknown = on_outline & ~on_paint
+        return PaintEvidence(on_paint=int(np.count_nonzero(on_paint)), judged=int(np.count_nonzero(~unknown)),
+                             edge_off_paint=int(np.count_nonzero(unknown)))
+
+    def _three_sigma(self, hits: ProjectedHits, lever: np.ndarray, rot: complex, nx: np.ndarray, ny: np.ndarray,
+                     cov: np.ndarray) -> np.ndarray:
+        """Three standard deviations of each hit across an edge of unit normal (nx, ny) (`paint_evidence`)."""
         # The edge normal's sensitivity to the pose (x, y, yaw) and the covariance it gives across the edge.
         jac = np.stack([nx, ny, ny * lever.real - nx * lever.imag])
-        pose_var = np.einsum("in,ij,jn->n", jac, np.asarray(pose_cov, np.float64)[:3, :3], jac)
+        pose_var = np.einsum("in,ij,jn->n", jac, cov, jac)
         view = hits.cview * rot
         along = nx * view.real + ny * view.imag
         across = ny * view.real - nx * view.imag
         pixel = self.config.fit.pixel_sigma
         var = (np.maximum(pose_var, 0.0) + (along * hits.sigma[:, 0] * pixel) ** 2
                + (across * hits.sigma[:, 1] * pixel) ** 2 + self.config.fit.floor_sigma_m ** 2)
-        on_paint = np.abs(distance) <= 3.0 * np.sqrt(var)
-        unknown = edge_band & ~on_paint
-        return PaintEvidence(on_paint=int(np.count_nonzero(on_paint)), judged=int(np.count_nonzero(~unknown)),
-                             edge_off_paint=int(np.count_nonzero(unknown)))
+        return 3.0 * np.sqrt(var)
 
     def track(self, hits: ProjectedHits, state: TrackState, t: float | None = None,
               marks: Callable[[], MarkPoints] | None = None) -> TrackStep:

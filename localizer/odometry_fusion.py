@@ -88,9 +88,9 @@ class FusionConfig(BaseModel):
                                         "prediction (min_explained)")
     min_explained: float = Field(0.5, ge=0, le=1, description="a frame of few hits is blind only while this "
                                  "share of them lies on paint at the predicted pose (3 sigma of its covariance)")
-    edge_margin_m: float = Field(0.3, ge=0, description="hits this close to the court's outer edge at the predicted "
-                                 "pose, on no paint, neither explain nor contradict it: a brightly lit floor shows "
-                                 "its own edge there, where the court model has no paint")
+    outline_may_show: bool = Field(True, description="the court's outline may show as an edge (a floor lit "
+                                   "brighter than the white mask's threshold): hits on it and on no paint neither "
+                                   "explain nor contradict the predicted pose")
     doubt_fixes: int = Field(2, ge=1, description="after a frame the prediction cannot explain (a contradiction, a "
                              "valid fit elsewhere) fixes in a row before poses are valid again; blind frames between "
                              "are not")
@@ -619,7 +619,7 @@ def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, w
         # say nothing for or against it (`GeometricLocalizer.paint_evidence`). The hits are projected a second time
         # (the tracker's projection stays inside it): only on frames without a fix.
         evidence = predictor.localizer.paint_evidence(predictor.projected_hits(hits), after.mean[:3],
-                                                      after.cov[:3, :3], fusion.config.edge_margin_m)
+                                                      after.cov[:3, :3], fusion.config.outline_may_show)
         in_view = evidence.judged
         contradicted = fusion.contradicts(evidence.on_paint, evidence.judged)
         beyond_edge = evidence.edge_off_paint >= fusion.config.min_hits_to_contradict

@@ -310,7 +310,8 @@ def test_the_floors_own_edge_under_bright_light_is_no_evidence_against_odometry(
     where the odometry says the robot is, those hits are neither explained nor a contradiction: the frames are
     not valid (the court model cannot say), but they put the track in no doubt and suspect no kidnap, so the
     blind frames after them stay valid on odometry. (Judged as paint evidence they made the twin's `fast`
-    run invalid for ~2 s at a time, the odometry pose 1-2 cm from the truth.)"""
+    run invalid for ~2 s at a time, the odometry pose 1-2 cm from the truth; `outline_may_show = false` judges
+    them so.)"""
     from courtloc.localizer.odometry_fusion import fused_track
     from courtloc.sim.edges import scan_hits
     from courtloc.sim.render import RenderOptions
@@ -324,6 +325,12 @@ def test_the_floors_own_edge_under_bright_light_is_no_evidence_against_odometry(
     projected = predictor.projected_hits(hits)
     seen = projected.cpoints * complex(math.cos(pose[2]), math.sin(pose[2])) + complex(pose[0], pose[1])
     assert np.all(np.abs(seen.imag - court.area_half_extent_m[1]) < 0.15)  # every hit on the floor's edge
+    # On the outline, within the pose's and the hits' own tolerance; 0.2 m away they are beside it, judged as any.
+    tight = np.diag([1e-4, 1e-4, 1e-5])
+    assert predictor.localizer.paint_evidence(projected, pose, tight).edge_off_paint >= len(hits) - 1
+    for off in (0.2, -0.2):
+        beside = predictor.localizer.paint_evidence(projected, pose + (0.0, off, 0.0), tight)
+        assert beside.edge_off_paint == 0 and beside.judged == len(hits) and beside.on_paint <= 1
     fusion = OdometryFusion(FusionConfig(enabled=True))
     for i in range(60):  # standing still: the odometry predicts the tracked pose
         fusion.offer(odometry(i * 0.01, 0.0, seq=i), i * 0.01)
