@@ -432,8 +432,9 @@ class OdometryFusion:
                     beyond_edge: bool = False) -> tuple[bool, str]:
         """Learn from a vision fix; decide whether a frame without one may be valid on odometry alone
         (`n_hits`: the hits that count as lines in view; `contradicted`: a frame of few hits the prediction
-        cannot explain, see `contradicts`; `beyond_edge`: at least `min_hits_to_contradict` hits off paint along
-        the court's outer edge at the prediction, which the court model can neither explain nor hold against it).
+        cannot explain, see `contradicts`; `beyond_edge`: at least `min_hits_to_contradict` hits on the court's
+        outline and on no paint at the prediction, which the court model can neither explain nor hold against it,
+        `GeometricLocalizer.paint_evidence`).
 
         Returns (valid, reason): the frame's validity after fusion and, when odometry decided, why."""
         if t is None or state is None:
@@ -474,8 +475,8 @@ class OdometryFusion:
             self.doubt = True
             return False, "odometry_unconfirmed"
         if beyond_edge:
-            # White along the court's edge: a floor lit brighter than the mask's threshold, or lines seen from
-            # elsewhere. Not a frame to be valid on, nor evidence of a move (no doubt).
+            # White on the court's outline: a floor lit brighter than the mask's threshold, or by chance lines seen
+            # from elsewhere. Not a frame to be valid on, nor evidence of a move (no doubt).
             self.counts["beyond_edge"] += 1
             return False, "odometry_unconfirmed"
         if self.doubt:
@@ -499,7 +500,7 @@ class OdometryFusion:
 
     def contradicts(self, on_paint: int, judged: int) -> bool:
         """Whether a frame of few hits speaks against the prediction: of the hits judged at the odometry
-        prediction (`judged`: all but those on no paint along the court's outer edge; too few to count as lines
+        prediction (`judged`: all but those on the court's outline and on no paint; too few to count as lines
         in view, enough to say something) less than `min_explained` lie on paint there (`on_paint`). The
         robocon2025 twin, robot teleported into a view of 14-30 hits: those frames were bridged as blind, valid
         on odometry 3.5 m from the robot."""
@@ -615,7 +616,7 @@ def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, w
     in_view, contradicted, beyond_edge = len(hits), False, False
     if after is not None and not fused_by_vision and fusion._predicted_t == t \
             and len(hits) >= fusion.config.min_hits_to_contradict:
-        # Lines in view are the hits judged at the prediction; those along the court's outer edge on no paint
+        # Lines in view are the hits judged at the prediction; those on the court's outline and on no paint
         # say nothing for or against it (`GeometricLocalizer.paint_evidence`). The hits are projected a second time
         # (the tracker's projection stays inside it): only on frames without a fix.
         evidence = predictor.localizer.paint_evidence(predictor.projected_hits(hits), after.mean[:3],

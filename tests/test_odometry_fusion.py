@@ -244,6 +244,22 @@ def robocon2025_twin():  # noqa: ANN201
     return predictor, Renderer(load_court("robocon2025"), load_camera("robocon2025"))
 
 
+def standing_still(predictor, pose: np.ndarray, config: FusionConfig, seconds: float = 0.6):  # noqa: ANN001, ANN201
+    """A fusion whose odometry has the robot standing still for `seconds` (so it predicts `pose`), and a track
+    at `pose` with its last fix at 0.1 s."""
+    fusion = OdometryFusion(config)
+    for i in range(int(round(seconds * 100))):
+        fusion.offer(odometry(i * 0.01, 0.0, seq=i), i * 0.01)
+    state = motion.start(pose, np.diag([1e-4, 1e-4, 1e-5]), 0.1, predictor.localizer.config.motion)
+    fusion.last_fix = (0.1, pose)
+    return fusion, state
+
+
+def spread(hits: np.ndarray, n: int = 16) -> np.ndarray:
+    """`n` of a frame's hits spread over it: fewer than `min_hits_in_view`, enough to contradict."""
+    return hits[np.linspace(0, len(hits) - 1, n).astype(int)]
+
+
 @pytest.mark.parametrize("pose", [(3.0, 1.0, 0.0), (4.0, -1.5, 0.5), (-3.0, 1.0, 3.0)])
 def test_a_robot_moved_into_a_view_of_few_hits_is_not_valid_on_odometry(robocon2025_twin, pose) -> None:
     """The defect the robocon2025 twin's kidnap bench showed: the robot teleported 3.5 m into a view of fewer
@@ -256,13 +272,8 @@ def test_a_robot_moved_into_a_view_of_few_hits_is_not_valid_on_odometry(robocon2
     tracked = np.array(pose)
 
     def frame_from(where: np.ndarray, config: FusionConfig):  # noqa: ANN202
-        hits = scan_hits(renderer.render(tuple(where)))
-        few = hits[np.linspace(0, len(hits) - 1, 16).astype(int)]
-        fusion = OdometryFusion(config)
-        for i in range(30):  # standing still: the odometry predicts the tracked pose
-            fusion.offer(odometry(i * 0.01, 0.0, seq=i), i * 0.01)
-        state = motion.start(tracked, np.diag([1e-4, 1e-4, 1e-5]), 0.1, predictor.localizer.config.motion)
-        fusion.last_fix = (0.1, tracked)
+        fusion, state = standing_still(predictor, tracked, config, seconds=0.3)
+        few = spread(scan_hits(renderer.render(tuple(where))))
         return fused_track(predictor, fusion, few, 640, 480, state, 0.2), fusion
 
     (seen, _, _), _ = frame_from(tracked, FusionConfig(enabled=True))
@@ -288,14 +299,9 @@ def test_frames_of_few_hits_that_contradict_the_prediction_in_a_row_are_a_suspec
 
     predictor, renderer = robocon2025_twin
     tracked, moved = np.array([3.0, 1.0, 0.0]), np.array([-0.5, 1.0, 0.0])
-    hits = scan_hits(renderer.render(tuple(moved)))
-    few = hits[np.linspace(0, len(hits) - 1, 16).astype(int)]
+    few = spread(scan_hits(renderer.render(tuple(moved))))
     config = FusionConfig(enabled=True)
-    fusion = OdometryFusion(config)
-    for i in range(60):  # standing still: the odometry predicts the tracked pose
-        fusion.offer(odometry(i * 0.01, 0.0, seq=i), i * 0.01)
-    state = motion.start(tracked, np.diag([1e-4, 1e-4, 1e-5]), 0.1, predictor.localizer.config.motion)
-    fusion.last_fix = (0.1, tracked)
+    fusion, state = standing_still(predictor, tracked, config)
     for i in range(config.disagree_frames):
         assert not fusion.suspect
         answer, state, _ = fused_track(predictor, fusion, few, 640, 480, state, 0.1 + (i + 1) / 30)
@@ -331,13 +337,8 @@ def test_the_floors_own_edge_under_bright_light_is_no_evidence_against_odometry(
     for off in (0.2, -0.2):
         beside = predictor.localizer.paint_evidence(projected, pose + (0.0, off, 0.0), tight)
         assert beside.edge_off_paint == 0 and beside.judged == len(hits) and beside.on_paint <= 1
-    fusion = OdometryFusion(FusionConfig(enabled=True))
-    for i in range(60):  # standing still: the odometry predicts the tracked pose
-        fusion.offer(odometry(i * 0.01, 0.0, seq=i), i * 0.01)
-    state = motion.start(pose, np.diag([1e-4, 1e-4, 1e-5]), 0.1, predictor.localizer.config.motion)
-    fusion.last_fix = (0.1, pose)
-    few = hits[np.linspace(0, len(hits) - 1, 16).astype(int)]
-    for i, frame in enumerate((hits, hits, few, hits, hits)):  # more than disagree_frames in a row
+    fusion, state = standing_still(predictor, pose, FusionConfig(enabled=True))
+    for i, frame in enumerate((hits, hits, spread(hits), hits, hits)):  # more than disagree_frames in a row
         answer, state, reason = fused_track(predictor, fusion, frame, 640, 480, state, 0.1 + (i + 1) / 30)
         assert not answer.valid and reason == "odometry_unconfirmed"
     assert fusion.counts["beyond_edge"] == 5 and not fusion.doubt and not fusion.suspect
