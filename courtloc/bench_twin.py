@@ -38,10 +38,12 @@ from courtloc.bench_twin_metrics import (
     kidnap_metrics,
     twin_metrics,
 )
+from courtloc.bench_twin_views import view_judge, with_views
 from courtloc.cli_errors import RUN_EXIT, UsageError
 from courtloc.cliargs import JSON_STDOUT, add_json_argument, json_output, json_to_stdout, positive_float
 from courtloc.common import codec
-from courtloc.common.messages import GroundTruth, Pose
+from courtloc.common.messages import Edges, GroundTruth, Pose
+from courtloc.common.payloads import edges_hits
 from courtloc.common.services_table import SERVICES, TOPICS
 from courtloc.launcher import Supervisor, write_effective_config
 from courtloc.services.deployment import DeploymentConfig, load_deployment
@@ -175,10 +177,13 @@ def markdown_table(report: dict[str, Any]) -> str:
         return "-" if value is None else fmt.format(value * scale)
 
     lines = ["| court | scenario | n | mean / median / p95 err (all) m | yaw median deg | valid | "
-             "valid mean / p95 m | valid_wrong | recovery mean / max s |", "|---|---|---|---|---|---|---|---|---|"]
+             "valid mean / p95 m | valid_wrong | recovery from a usable view mean / max s (from the event) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     court = report["run"]["court"]
     for name, r in scenario_rows(report):
-        notes = "".join([f" ({r['events_unrecovered']} unrecovered)" if r["events_unrecovered"] else "",
+        notes = "".join([f" ({num(r.get('recovery_from_event_s_mean'), '{:.2f}')} / "
+                         f"{num(r.get('recovery_from_event_s_max'), '{:.2f}')})",
+                         f" ({r['events_unrecovered']} unrecovered)" if r["events_unrecovered"] else "",
                          f", {r['recovery_wrong']} first valid wrong" if r["recovery_wrong"] else ""])
         lines.append(
             f"| {court} | {name} | {r['n']} | {num(r['mean_err_m'], '{:.2f}')} / {num(r['median_err_m'], '{:.3f}')} / "
@@ -246,7 +251,9 @@ def _print_row(name: str, r: dict[str, Any]) -> None:
           f"p95 {_fmt(r['p95_err_m'])} m  valid {_fmt(r['valid_fraction'], 100, 1)}% "
           f"(valid mean {_fmt(r['valid_mean_err_m'])} p95 {_fmt(r['valid_p95_err_m'])} m)  "
           f"valid_wrong {r['valid_wrong']}  recovery mean {_fmt(r['recovery_s_mean'], digits=2)} "
-          f"max {_fmt(r['recovery_s_max'], digits=2)} s ({r['events_unrecovered']}/{r['events']} unrecovered)  "
+          f"max {_fmt(r['recovery_s_max'], digits=2)} s from a usable view (from the event "
+          f"{_fmt(r.get('recovery_from_event_s_mean'), digits=2)} / {_fmt(r.get('recovery_from_event_s_max'), digits=2)}; "
+          f"{r['events_unrecovered']}/{r['events']} unrecovered)  "
           f"camera {_fmt(r.get('camera_fps'), digits=1)} fps",
           file=sys.stderr, flush=True)
 
@@ -303,12 +310,14 @@ def start_config(sc, tell: str) -> dict[str, Any] | None:  # noqa: ANN001
 class _Record:
     truths: list = field(default_factory=list)
     poses: list = field(default_factory=list)
+    hits: dict = field(default_factory=dict)  # capture stamp -> the frame's edge hits (usable views)
     last_seq: int = -1
     undecodable: int = 0
 
 
 class TwinRecorder(BusWatcher):
-    """The watcher (liveliness, health) plus every pose and truth, decoded on its own thread."""
+    """The watcher (liveliness, health) plus every pose, truth and frame's edge hits, decoded on its own
+    thread."""
 
     def __init__(self, config) -> None:  # noqa: ANN001
         super().__init__(config)
@@ -321,7 +330,7 @@ class TwinRecorder(BusWatcher):
     def extra_subscribers(self, zsession):  # noqa: ANN001, ANN201
         robot = self.config.robot_id
         subs = [zsession.declare_subscriber(TOPICS[path].key(robot), self._keep(path))
-                for path in ("camera/ground_truth", "infer/pose")]
+                for path in ("camera/ground_truth", "infer/pose", "preprocess/edges")]
         self._decoder.start()
         self.subscribed.set()
         return subs
@@ -340,7 +349,10 @@ class TwinRecorder(BusWatcher):
                 continue
             try:
                 message = codec.decode(payload, TOPICS[path].message)
-            except codec.DecodeError:
+                if isinstance(message, Edges):
+                    self.record.hits[message.header.capture_mono_ns] = edges_hits(message)
+                    continue
+            except (codec.DecodeError, ValueError):
                 self.record.undecodable += 1
                 continue
             header = message.header
@@ -426,6 +438,9 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any],  # 
     truths = [t for t in recorder.record.truths if t.capture_ns <= end_ns]
     poses = [p for p in recorder.record.poses if p.capture_ns <= end_ns]
     events = scenario_events(sc, truths, poses, args.fps, kill_ns, real_time=fused)
+    court = load_court(sc.sim.court)
+    judge = view_judge(court.name, load_camera(config.camera.sim.get("camera") or court.default_camera).name)
+    events = with_views(events, truths, recorder.record.hits, judge, end_ns)
     result = twin_metrics(poses, truths, events, end_ns)
     first = min((t.capture_ns for t in truths), default=0)
     last = max((t.capture_ns for t in truths), default=0)

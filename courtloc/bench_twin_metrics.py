@@ -7,10 +7,13 @@ Every pose is matched to the camera's ground truth of the same frame by the head
   ignores the flag would get); the same with the prefix `valid_` over the valid ones only.
 - valid_fraction: valid poses / matched poses. valid_wrong: valid poses more than `wrong_m` off.
 - recovery: for each event (the start of the run, a kidnap, the end of an outage, a restarted infer
-  process) the time from the capture of the first usable frame after it to the publication of the first
-  valid pose captured at or after it. An event not recovered before the next event (or the end of the
-  run) counts with the time it had, as a lower bound, and is counted in `events_unrecovered`. Whether that
-  first valid pose was wrong is kept per event and counted in `recovery_wrong`.
+  process) the first valid pose captured at or after its first frame. `recovery_s`: from the capture of
+  the first usable view since the event (`Event.view_ns`, courtloc/bench_twin_views.py: a view whose lines
+  place the robot) to that pose's publication, 0 when the pose was valid before any usable view (odometry,
+  a prior); `recovery_from_event_s`: from the event's first frame. An event not recovered before the next
+  event (or the end of the run) counts with the time it had, as a lower bound, and is counted in
+  `events_unrecovered`; one that also had no usable view has no `recovery_s` (`events_without_view`).
+  Whether that first valid pose was wrong is kept per event and counted in `recovery_wrong`.
 - wrong_runs: the valid-and-wrong poses grouped into runs of consecutive poses (in capture order), the
   first `MAX_RUNS`: where a run starts and ends, how many poses, the worst error and the median yaw error
   (a run ~180 degrees off is the point-symmetric twin).
@@ -49,10 +52,17 @@ class PoseSample:
     reason: str = ""
 
 
+FROM_EVENT = -1  # an event's views not judged: its first frame is taken as usable
+
+
 @dataclass(frozen=True)
 class Event:
     kind: str  # "start", "kidnap", "outage", "infer_restart"
-    start_ns: int  # capture time of the first usable frame after it
+    start_ns: int  # capture time of the first frame after it
+    view_ns: int | None = FROM_EVENT  # capture time of the first usable view since; None: none before the next event
+
+    def usable_from(self) -> int | None:
+        return self.start_ns if self.view_ns == FROM_EVENT else self.view_ns
 
 
 def _stats(err: np.ndarray, yaw_err: np.ndarray, prefix: str = "") -> dict[str, float | None]:
@@ -76,14 +86,19 @@ def _recoveries(events: list[Event], matched: list[tuple[PoseSample, float]], en
     for i, event in enumerate(ordered):
         horizon = starts[i + 1] if i + 1 < len(ordered) else end_ns
         first = next(((p, err) for p, err in valid if event.start_ns <= p.capture_ns < horizon), None)
-        row: dict[str, Any] = {"kind": event.kind, "start_ns": event.start_ns}
+        view = event.usable_from()
+        row: dict[str, Any] = {"kind": event.kind, "start_ns": event.start_ns,
+                               "view_after_s": None if view is None else (view - event.start_ns) / 1e9}
         if first is None:
-            row.update(recovered=False, recovery_s=max(horizon - event.start_ns, 0) / 1e9,
+            row.update(recovered=False, recovery_from_event_s=max(horizon - event.start_ns, 0) / 1e9,
+                       recovery_s=None if view is None else max(horizon - view, 0) / 1e9,
                        first_valid_err_m=None, first_valid_wrong=None)
         else:
             pose, err = first
-            row.update(recovered=True, recovery_s=max(pose.published_ns - event.start_ns, 0) / 1e9,
-                       first_valid_err_m=err, first_valid_wrong=bool(err > wrong_m))
+            # Valid before any usable view (odometry carried it, or a prior): nothing was waited for.
+            waited = 0 if view is None or pose.capture_ns < view else max(pose.published_ns - view, 0)
+            row.update(recovered=True, recovery_from_event_s=max(pose.published_ns - event.start_ns, 0) / 1e9,
+                       recovery_s=waited / 1e9, first_valid_err_m=err, first_valid_wrong=bool(err > wrong_m))
         out.append(row)
     return out
 
@@ -122,7 +137,8 @@ def twin_metrics(poses: list[PoseSample], truths: list[TruthSample], events: lis
     yaw = np.array([0.0 if y is None else y for y in yaw_errs], dtype=np.float64)
     recoveries = _recoveries(events, matched, end_ns, wrong_m)
     runs = _wrong_runs([(p, e, y) for (p, e), y in zip(matched, yaw_errs)], wrong_m)
-    times = np.array([r["recovery_s"] for r in recoveries], dtype=np.float64)
+    times = np.array([r["recovery_s"] for r in recoveries if r["recovery_s"] is not None], dtype=np.float64)
+    from_event = np.array([r["recovery_from_event_s"] for r in recoveries], dtype=np.float64)
     reasons: dict[str, int] = {}
     for pose, _ in matched:
         if not pose.valid:
@@ -138,8 +154,11 @@ def twin_metrics(poses: list[PoseSample], truths: list[TruthSample], events: lis
         "wrong_m": wrong_m,
         "recovery_s_mean": float(times.mean()) if times.size else None,
         "recovery_s_max": float(times.max()) if times.size else None,
+        "recovery_from_event_s_mean": float(from_event.mean()) if from_event.size else None,
+        "recovery_from_event_s_max": float(from_event.max()) if from_event.size else None,
         "events": len(recoveries),
         "events_unrecovered": sum(not r["recovered"] for r in recoveries),
+        "events_without_view": sum(r["recovery_s"] is None for r in recoveries),
         "recovery_wrong": sum(bool(r["first_valid_wrong"]) for r in recoveries),
         "recoveries": recoveries,
         "wrong_runs": runs,

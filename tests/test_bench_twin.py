@@ -24,7 +24,7 @@ from courtloc.sim.scenarios import SCENARIOS, scenario
 
 MS = 1_000_000
 REQUIRED = ("n", "mean_err_m", "median_err_m", "p95_err_m", "yaw_median_deg", "valid_fraction", "valid_wrong",
-            "recovery_s_mean", "recovery_s_max")
+            "recovery_s_mean", "recovery_s_max", "recovery_from_event_s_mean", "events_without_view")
 
 
 def _truths(n: int) -> list[TruthSample]:
@@ -97,6 +97,28 @@ def test_an_event_ends_at_the_next_one():
     first, second = r["recoveries"]
     assert first["recovered"] is False and first["recovery_s"] == pytest.approx(1.0)
     assert second["recovered"] is True and second["recovery_s"] == pytest.approx(0.53)
+
+
+def test_recovery_is_timed_from_the_first_usable_view_and_from_the_event_beside_it():
+    truths = _truths(60)
+    # Valid from frame 14 on after the kidnap at 10 (first usable view: frame 12); valid at 21, before the
+    # outage's first usable view (frame 25: odometry carried it); never valid after the restart at 40,
+    # whose views never were usable; the run starts at 0 and its view is usable at once.
+    valid_frames = set(range(2, 10)) | set(range(14, 20)) | set(range(21, 40))
+    poses = [_pose(k, 0.0, valid=k in valid_frames) for k in range(60)]
+    events = [Event("start", 0, view_ns=0), Event("kidnap", 10 * 100 * MS, view_ns=12 * 100 * MS),
+              Event("outage", 20 * 100 * MS, view_ns=25 * 100 * MS), Event("infer_restart", 40 * 100 * MS, view_ns=None)]
+    r = twin_metrics(poses, truths, events, end_ns=60 * 100 * MS)
+    start, kidnap, outage, restart = r["recoveries"]
+    assert start["recovery_s"] == pytest.approx(0.23) and start["recovery_from_event_s"] == pytest.approx(0.23)
+    assert kidnap["recovery_s"] == pytest.approx(0.23) and kidnap["recovery_from_event_s"] == pytest.approx(0.43)
+    assert kidnap["view_after_s"] == pytest.approx(0.2)
+    assert outage["recovery_s"] == 0.0 and outage["recovery_from_event_s"] == pytest.approx(0.13)
+    assert restart["recovered"] is False and restart["recovery_s"] is None
+    assert restart["recovery_from_event_s"] == pytest.approx(2.0)
+    assert r["recovery_s_mean"] == pytest.approx((0.23 + 0.23 + 0.0) / 3) and r["recovery_s_max"] == pytest.approx(0.23)
+    assert r["recovery_from_event_s_max"] == pytest.approx(2.0)
+    assert r["events_without_view"] == 1 and r["events_unrecovered"] == 1
 
 
 def test_scenario_events_start_at_the_first_usable_frame():
