@@ -38,7 +38,11 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    with a valid fit (`confirm_frames_tight` when a pose prior known to `tight_prior_m` decided: a wrong
    basin that close to a known pose is what tracking risks anyway); each of those frames searches the
    court again, and a frame that an invalid (unpinnable, e.g. only parallel lines) pose explains better
-   than every valid one confirms nothing. Then the track starts there and the frame is valid. Until then every frame is
+   than every valid one confirms nothing. Nor, for a decision by a prior (or a lone hypothesis), does one
+   whose search found nothing within the decided fit's tie: the decision was relative to the hypotheses
+   found, and a search blind to this view cannot have found the decided one's rivals (a decision by colour
+   marks judges the hypothesis itself, after it moved). Then the track starts there and the
+   frame is valid. Until then every frame is
    invalid with reason `ambiguous` (several hypotheses) or `searching` (none yet).
 Pure functions of the state the caller passes in, like motion.py.
 """
@@ -247,6 +251,7 @@ class Decision:
     explained: bool  # the prior explains at least one hypothesis (False: drop a lost track's prior)
     tight: bool = False  # decided by a pose prior known to within `tight_prior_m` (needs less confirmation)
     kidnap: bool = False  # decided by a kidnap prior or by colour marks alone (needs more)
+    marks: bool = False  # decided by colour marks alone (moved since first seen: `_marks_decision`)
 
 
 def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None, t: float | None,
@@ -276,7 +281,7 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
         d2 = {i: hypothesis_distance2(prior, hypotheses[i], cfg) for i in keep}
         inside = [i for i in keep if d2[i] <= cfg.prior_gate_chi2]
         if not inside:
-            return Decision(marks_pick, explained=False, kidnap=True)
+            return Decision(marks_pick, explained=False, kidnap=True, marks=marks_pick is not None)
         # Deciding counts the heading at most `max_decide_yaw_std_deg` wide: a prior whose heading has grown
         # vague still decides for a hypothesis heading where it said (a restarted stage's saved pose, its twin
         # half a turn away), never for one turned a right angle from it (a court of right angles fits such
@@ -294,9 +299,9 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
         # A prior too vague (or too far) to decide does not stop the marks from deciding as they would
         # without it: the robocon2025 twin kept a hypothesis 2-5 cm from the truth undecided for 2.5 s, its
         # twin contradicted by 1392 marks, because the lost track's prior explained it at d^2 10.2, not 9.
-        return Decision(marks_pick, explained, kidnap=True)
+        return Decision(marks_pick, explained, kidnap=True, marks=marks_pick is not None)
     if court_marks:
-        return Decision(marks_pick, explained, kidnap=True)
+        return Decision(marks_pick, explained, kidnap=True, marks=marks_pick is not None)
     return Decision(keep[0] if lone else None, explained)
 
 

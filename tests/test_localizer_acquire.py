@@ -323,3 +323,30 @@ def test_a_carried_prior_is_compared_where_odometry_moved_it() -> None:
     still = replace(prior, carry=None)
     assert acquire.prior_distance2(still, parallel, 0.3, CFG) <= CFG.decide_chi2
     assert _decide([parallel, mirror(parallel)], still, t=0.3).index == 0
+
+
+def test_a_frame_whose_search_is_blind_to_the_view_confirms_no_decision() -> None:
+    """Recorded robocon2025 frames (tests/data/r25_blind_search_prior.json): a lost track's prior decides for
+    a basin 1.8 m off that one search found; the true pose, as valid a fit, is never found by the confirming
+    frames' searches, which end far above the decided fit. Those frames confirm nothing, so no pose of the
+    decided basin is valid (without the rule: valid from the fourth frame on, 1.8 m off)."""
+    import json
+    from pathlib import Path
+
+    from courtloc.localizer.package import bundled_package
+    from courtloc.localizer.predictor import load_predictor
+
+    data = json.loads((Path(__file__).parent / "data" / "r25_blind_search_prior.json").read_text())
+    predictor = load_predictor(bundled_package("robocon2025", "robocon2025"))
+    prior = data["prior"]
+    state = acquire.Acquiring(prior=acquire.Prior("track", pose=np.array(prior["pose"]), std_m=prior["std_m"],
+                                                  t=prior["t"]))
+    width, height = data["size"]
+    statuses, wrong_valid = [], 0
+    for frame in data["frames"]:
+        pred, state = predictor.track(np.array(frame["hits"], np.int16).reshape(-1, 4), width, height, state,
+                                      t=frame["t"], marks=np.array(frame["marks"], np.int16).reshape(-1, 3))
+        statuses.append(pred.reason)
+        wrong_valid += pred.valid and math.hypot(pred.x - frame["truth"][0], pred.y - frame["truth"][1]) > 0.5
+    assert "confirming" in statuses, "the recorded frames no longer reach a decision: the test shows nothing"
+    assert wrong_valid == 0
