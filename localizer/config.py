@@ -120,6 +120,8 @@ class AcquireConfig(BaseModel):
     confirm_frames_tight: int = Field(3, ge=1, description="... when a pose prior within tight_prior_m decided")
     confirm_frames_kidnap: int = Field(10, ge=1, description="... when a kidnap prior decided (it admits wrong "
                                        "hypotheses metres away: the view must change before one is trusted)")
+    confirm_frames_marks: int = Field(5, ge=1, description="... when colour marks alone decided (the hypothesis "
+                                      "has already moved marks_motion_m or turned marks_turn_deg since first seen)")
     tight_prior_m: float = Field(1.0, gt=0, description="a pose prior this well known (std, grown by its age) is "
                                  "tight")
     research_frames: int = Field(15, ge=1, description="while undecided, search the court again this often")

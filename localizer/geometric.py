@@ -404,7 +404,8 @@ class GeometricLocalizer:
             # 1.8 m off. Colour marks judge the hypothesis itself, once it has moved: the robocon2025 drive
             # facing the red strip (tests/test_localizer_marks.py) is blind to the search for its whole 1.3 s.
             agreed = state.agreed
-        needed = (acfg.confirm_frames_kidnap if decision.kidnap else
+        needed = (acfg.confirm_frames_marks if decision.marks else
+                  acfg.confirm_frames_kidnap if decision.kidnap else
                   acfg.confirm_frames_tight if decision.tight else acfg.confirm_frames)
         if agreed >= needed and chosen.state.lost == 0:
             return TrackStep(LocalizeResult(pose=res.pose, fit=res.fit, mode="acquired"), chosen.state)

@@ -109,3 +109,26 @@ def test_a_standing_robot_is_not_decided_by_marks_alone(robocon) -> None:  # noq
         answer = tracker.step(predictor, preprocessor.process(frame), 640, 480, k / 30.0,
                               marks=preprocessor.marks(frame))
         assert not answer.valid or math.hypot(answer.x - truth[0], answer.y - truth[1]) < 0.3
+
+
+def test_a_marks_decision_is_confirmed_over_its_own_frames_not_the_kidnap_priors(robocon) -> None:  # noqa: ANN001
+    """The rendered drive facing the red strip, decided by its marks: with `confirm_frames_marks` small and
+    `confirm_frames_kidnap` longer than the drive, it is valid by the end (and right); a decision by marks
+    alone waits for its own count."""
+    predictor, preprocessor, renderer = robocon
+    truths = _drive(np.array(FACING_RED[0]), 40, 0.05)
+    loc = predictor.localizer
+    saved = loc.config
+    loc.config = saved.model_copy(update={"acquire": saved.acquire.model_copy(
+        update={"confirm_frames_marks": 2, "confirm_frames_kidnap": 100})})
+    try:
+        tracker = Tracker()
+        answers = []
+        for k, t in enumerate(truths):
+            frame = renderer.render(tuple(t), RenderOptions(), np.random.default_rng(k))
+            answers.append(tracker.step(predictor, preprocessor.process(frame), 640, 480, k / 30.0,
+                                        marks=preprocessor.marks(frame)))
+    finally:
+        loc.config = saved
+    assert answers[-1].valid, [a.reason for a in answers]
+    assert all(math.hypot(a.x - t[0], a.y - t[1]) < 0.3 for a, t in zip(answers, truths) if a.valid)
