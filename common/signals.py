@@ -1,4 +1,5 @@
-"""Stopping a process cleanly on Ctrl-C or `kill`: both signals set one event the process waits on."""
+"""Stopping a process cleanly on Ctrl-C or `kill`: both signals set one event the process waits on, or (a
+command without such a loop) `kill` raises in the main thread as Ctrl-C does."""
 from __future__ import annotations
 
 import logging
@@ -26,3 +27,17 @@ def stop_on_signals(stop: threading.Event | None = None) -> threading.Event:
     for signum in _STOP_SIGNALS:
         signal.signal(signum, request_stop)
     return event
+
+
+def terminate_as_interrupt() -> None:
+    """`kill` (SIGTERM) ends the process as Ctrl-C does: KeyboardInterrupt in the main thread, so `finally`
+    blocks run (a bench stops the router and stages it started instead of leaving them running). A later
+    `stop_on_signals` replaces it; off the main thread nothing is installed."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+
+    def interrupt(signum: int, _frame: object) -> None:
+        log.info("signal %d: interrupting", signum)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, interrupt)

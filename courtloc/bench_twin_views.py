@@ -3,10 +3,13 @@
 Issue 20 times a recovery "within 1 s of a usable view". After a kidnap the twin robot may face no lines,
 or only lines along one direction (a view that cannot pin the pose down): no localizer can be back before
 the camera sees something it can place, so the clock starts at the first frame it could. A frame's view
-is usable when the bundled localizer's fit started AT the frame's true pose is valid (enough inliers and
-the pose pinned, the same rule that makes any of its fits valid) and stays within `NEAR_M` of it (a
-fit that slides to another basin placed the robot elsewhere). It is judged with the package built for
-the court and the camera the twin renders with, whatever model the infer stage serves.
+is usable when the bundled localizer's fit started AT the frame's true pose has the inliers a valid fit
+needs, pins the position to `USABLE_STD_M` in its worst direction, and stays within `NEAR_M` of the
+truth (a fit that slides to another basin placed the robot elsewhere). The std bound is looser than a
+lone fit's validity (0.08 m): the tracker combines frames, and a start view pinned to 0.1 m is valid
+within a few of them; a degenerate view's std along its lines is metres or unbounded. It is judged with
+the package built for the court and the camera the twin renders with, whatever model the infer stage
+serves.
 
 The side of a point-symmetric court is not part of it: no view tells the twins apart there, so a kidnap
 on seed-gazebo can stay unrecovered however usable its views are.
@@ -30,6 +33,7 @@ log = logging.getLogger("courtloc.bench_twin")
 # Half the bench's "wrong" distance: a valid fit this close to the truth is the truth's basin (the twin's
 # valid fits are a few cm off; the next basins, the court's parallel lines, are 0.5 m and more away).
 NEAR_M = WRONG_M / 2
+USABLE_STD_M = 0.15
 
 
 class ViewJudge:
@@ -37,13 +41,14 @@ class ViewJudge:
 
     def __init__(self, predictor: GeometricPredictor) -> None:
         self.predictor = predictor
+        self.quality = predictor.localizer.config.quality.model_copy(update={"max_position_std_m": USABLE_STD_M})
 
     def usable(self, hits: np.ndarray, truth: TruthSample) -> bool:
         if not len(hits):
             return False
         loc = self.predictor.localizer
         start = np.array([truth.x, truth.y, truth.yaw])
-        fit = fit_pose(loc.field, self.predictor.projected_hits(hits), start, loc.config.fit, loc.config.quality)
+        fit = fit_pose(loc.field, self.predictor.projected_hits(hits), start, loc.config.fit, self.quality)
         return bool(fit.valid) and math.hypot(*(fit.pose[:2] - start[:2])) <= NEAR_M
 
 

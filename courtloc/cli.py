@@ -13,6 +13,7 @@ from typing import NoReturn, Sequence
 from pydantic import ValidationError
 
 from courtloc.cli_errors import RUN_EXIT, USAGE_EXIT, UsageError
+from courtloc.common.signals import terminate_as_interrupt
 
 # Command -> the module that registers it: each exposes `register(subparsers)`, adding its sub-command(s)
 # with `set_defaults(func=...)`. Only the module of the command given is imported: importing all of them
@@ -145,6 +146,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     if not getattr(args, "func", None):
         parser.print_help()
         sys.exit(USAGE_EXIT)
+    terminate_as_interrupt()
     try:
         code = args.func(args)
     except KeyboardInterrupt:

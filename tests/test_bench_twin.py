@@ -292,3 +292,58 @@ def test_fusion_scenarios_run_both_ways_by_default_and_report_side_by_side():
               "kidnap": {"fusion": "fused"}}
     assert [name for name, _ in scenario_rows(report)] == ["clean", "blackout (vision only)", "blackout (fused)",
                                                              "kidnap (fused)"]
+
+
+def _children(pid: int) -> set[int]:
+    """The live processes whose parent is `pid` (from /proc)."""
+    found = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:  # ended meanwhile
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()  # after "(comm)": state, ppid, ...
+        if int(fields[1]) == pid and fields[0] != "Z":
+            found.add(int(entry.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return (Path("/proc") / str(pid) / "stat").read_text().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_a_killed_bench_stops_the_router_and_stages_it_started() -> None:
+    """`kill` (SIGTERM) of a running `courtloc bench twin` ends it as Ctrl-C does: it stops the router and the
+    four stage processes it started (before, they ran on with nobody to stop them) and exits 130."""
+    import os
+    import signal
+    import time
+
+    bench = subprocess.Popen([sys.executable, "-m", "courtloc", "bench", "twin", "--court", "seed-gazebo",
+                              "--scenario", "clean", "--seconds", "60"],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    started: set[int] = set()
+    try:
+        deadline = time.monotonic() + 120.0
+        # The router and the four stages (the camera starts last, once the others are alive on the bus).
+        while len(started := _children(bench.pid)) < 5:
+            assert bench.poll() is None, bench.stderr.read()[-2000:]
+            assert time.monotonic() < deadline, f"only {len(started)} child processes after 120 s"
+            time.sleep(0.1)
+        os.kill(bench.pid, signal.SIGTERM)
+        assert bench.wait(timeout=60) == 130
+        deadline = time.monotonic() + 30.0
+        while any(_alive(pid) for pid in started) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not [pid for pid in started if _alive(pid)]
+    finally:
+        if bench.poll() is None:
+            bench.kill()
+        for pid in started:  # orphans when the bench did not stop them
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)

@@ -38,6 +38,21 @@ def test_a_view_is_usable_only_where_its_lines_place_the_robot(judge_and_view) -
     assert not judge.usable(hits[:4], truth(0))
 
 
+def test_a_view_of_lines_along_one_direction_is_not_usable(judge_and_view) -> None:
+    """The robocon2025 twin's second kidnap lands facing lines that run one way (45 hits, all inliers): the
+    fit at the truth cannot pin the position along them, so no localizer could place the robot from it."""
+    from courtloc.sim.edges import scan_hits
+    from courtloc.sim.render import Renderer
+    from courtloc.world.camera import load_camera
+    from courtloc.world.court import load_court
+
+    judge, _ = judge_and_view
+    pose = (1.0, -0.7, 1.85)
+    hits = scan_hits(Renderer(load_court("robocon2025"), load_camera("robocon2025")).render(pose))
+    assert len(hits) >= 40
+    assert not judge.usable(hits, TruthSample(seq=0, capture_ns=0, x=pose[0], y=pose[1], yaw=pose[2]))
+
+
 def test_each_event_gets_its_first_usable_view_before_the_next_event(judge_and_view) -> None:
     judge, hits = judge_and_view
     blind = np.zeros((0, 4), np.int16)
