@@ -64,6 +64,8 @@ class FitResult:
     # (3, 3) covariance of (x, y, yaw), m^2 / m rad / rad^2, from the normal matrix behind the stds
     # (inliers at unit weight, i.e. hit noise as configured; tilt marginalised); None without a fit.
     covariance: np.ndarray | None = None
+    # A valid fit a track demoted for landing farther from its prediction than `track_max_jump_m`.
+    beyond_jump: bool = False
 
 
 class FrameTerms:

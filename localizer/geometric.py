@@ -314,6 +314,18 @@ class GeometricLocalizer:
                 # seed recording): the next frame must agree with the restarted track.
                 return TrackStep(self._status(self._answer(res, res.pose, invalid=True), "jump"),
                                  motion.start(res.pose, res.fit.covariance, t, mcfg))
+        own_prediction = t is None or state.t is None or t > state.t
+        if guard_regain and res.fit.beyond_jump and res.fit.covariance is not None and own_prediction:
+            # A valid fit farther from the constant-velocity prediction than a track may move is a jump too, not
+            # a frame to coast through: the seed twin's fast walk (2.5 m/s) seen at 10 fps reversed at the area's
+            # edge, the prediction overshot by 0.5 m, two frames' fits at the truth (100 inliers, 1-2 cm std) were
+            # set aside, and the coasting track settled in a basin 1.5 m off whose fits were valid (then 4.4 m
+            # off, valid again after a re-anchoring: tests/data/seed_fast_10fps_drift.json). Not where odometry
+            # carried the state to this frame (its time is the frame's): odometry saw the reversal, and such a
+            # fit is a misread view (the seed twin's occluded walk, fused, lost its track for 20 s that way); nor
+            # for an acquisition's hypotheses (guard_regain False), whose evidence belongs to where they are.
+            return TrackStep(self._status(self._answer(res, res.pose, invalid=True), "jump"),
+                             motion.start(res.pose, res.fit.covariance, t, mcfg))
         return TrackStep(self._answer(res, pred.pose, invalid=True), motion.coast(pred, mcfg))
 
     # ---- acquisition (acquire.py has the rule) ------------------------------------------------------
@@ -552,7 +564,7 @@ class GeometricLocalizer:
             if (ok, -res.cost) > (best_ok, -best.cost):
                 best = res
         if best.valid and math.hypot(*(best.pose[:2] - prev[:2])) > cfg.track_max_jump_m:
-            best = FitResult(**{**best.__dict__, "valid": False, "quality": min(best.quality, 0.49)})
+            best = FitResult(**{**best.__dict__, "valid": False, "quality": min(best.quality, 0.49), "beyond_jump": True})
         return best
 
     def _fit_starts(self, hits: ProjectedHits, starts: np.ndarray) -> list[FitResult]:

@@ -293,3 +293,30 @@ def test_a_fused_degenerate_frame_is_valid_by_its_posterior(prior_std_m, valid) 
     assert (step.result.fit.position_std_m <= q.max_position_std_m) is valid, "the answer carries the posterior std"
     assert valid or step.result.quality < 0.5
     assert abs(step.result.pose[1] - pose[1]) < 0.02, "y is pinned by the edge either way"
+
+
+def test_a_valid_fit_beyond_the_jump_limit_is_a_jump_not_a_frame_to_coast_through() -> None:
+    """Recorded seed-gazebo frames at 10 fps (tests/data/seed_fast_10fps_drift.json): the robot, at 2.5 m/s,
+    reverses at the area's edge; the track's prediction overshoots by 0.5 m and the next two frames' fits lie
+    at the truth, valid but beyond `track_max_jump_m`. Coasting through them, the track settled in a basin
+    1.5 m off whose fits were valid (then 4.4 m off). As a jump, the track and the fit are weighed by the
+    frames after: no valid pose is wrong, and the track is back, valid and right, within half a second."""
+    from courtloc.localizer.package import bundled_package
+    from courtloc.localizer.predictor import load_predictor
+
+    data = json.loads((Path(__file__).parent / "data" / "seed_fast_10fps_drift.json").read_text())
+    s = data["state"]
+    state = motion.MotionState(mean=np.array(s["mean"]), cov=np.array(s["cov"]), t=s["t"], lost=s["lost"],
+                               weak=s["weak"])
+    predictor = load_predictor(bundled_package("seed-gazebo", "seed-gazebo"))
+    width, height = data["size"]
+    errors, valid = [], []
+    for frame in data["frames"]:
+        pred, state = predictor.track(np.array(frame["hits"], np.int16).reshape(-1, 4), width, height, state,
+                                      t=frame["t"], marks=np.array(frame["marks"], np.int16).reshape(-1, 3))
+        errors.append(math.hypot(pred.x - frame["truth"][0], pred.y - frame["truth"][1]))
+        valid.append(pred.valid)
+    assert not [e for e, v in zip(errors, valid) if v and e > 0.5]
+    first_back = next(i for i, v in enumerate(valid) if i > 1 and v)
+    assert data["frames"][first_back]["t"] - data["frames"][0]["t"] <= 0.6
+    assert all(valid[first_back:]), "lost again after the recovery"
