@@ -77,14 +77,17 @@ def _stats(err: np.ndarray, yaw_err: np.ndarray, prefix: str = "") -> dict[str, 
     }
 
 
+def in_windows(events: list[Event], end_ns: int) -> list[tuple[Event, int]]:
+    """The events in capture order, each with the end of its window: the next event's first frame, or `end_ns`."""
+    ordered = sorted(events, key=lambda e: e.start_ns)
+    return [(e, ordered[i + 1].start_ns if i + 1 < len(ordered) else end_ns) for i, e in enumerate(ordered)]
+
+
 def _recoveries(events: list[Event], matched: list[tuple[PoseSample, float]], end_ns: int,
                 wrong_m: float) -> list[dict[str, Any]]:
-    ordered = sorted(events, key=lambda e: e.start_ns)
     valid = sorted(((p, e) for p, e in matched if p.valid), key=lambda pe: pe[0].capture_ns)
-    starts = [e.start_ns for e in ordered]
     out = []
-    for i, event in enumerate(ordered):
-        horizon = starts[i + 1] if i + 1 < len(ordered) else end_ns
+    for event, horizon in in_windows(events, end_ns):
         first = next(((p, err) for p, err in valid if event.start_ns <= p.capture_ns < horizon), None)
         view = event.usable_from()
         row: dict[str, Any] = {"kind": event.kind, "start_ns": event.start_ns,

@@ -22,7 +22,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from courtloc.bench_twin_metrics import Event, TruthSample
+from courtloc.bench_twin_metrics import Event, TruthSample, in_windows
 from courtloc.lab.metrics import WRONG_M
 from courtloc.localizer.fit import fit_pose
 from courtloc.localizer.manifest import ManifestError
@@ -74,11 +74,9 @@ def with_views(events: list[Event], truths: list[TruthSample], hits_by_capture: 
     their own first frame)."""
     if judge is None:
         return list(events)
-    ordered = sorted(events, key=lambda e: e.start_ns)
     frames = sorted((t for t in truths if t.capture_ns in hits_by_capture), key=lambda t: t.capture_ns)
     out = []
-    for i, event in enumerate(ordered):
-        horizon = ordered[i + 1].start_ns if i + 1 < len(ordered) else end_ns
+    for event, horizon in in_windows(events, end_ns):
         view = next((t.capture_ns for t in frames if event.start_ns <= t.capture_ns < horizon
                      and judge.usable(hits_by_capture[t.capture_ns], t)), None)
         out.append(replace(event, view_ns=view))

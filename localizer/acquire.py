@@ -265,8 +265,8 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
     on top of the prior. `t` is the decision's time (the tight flag's age). `court_marks`: the court has
     colour marks; a hypothesis they contradict is never the robot, and without a prior a lone hypothesis
     is decided only when they speak for it (on a point-symmetric court its twin is then contradicted) and
-    it has moved `marks_motion_m` or turned `marks_turn_deg` since it was first seen, confirmed like a
-    kidnap prior's decision."""
+    it has moved `marks_motion_m` or turned `marks_turn_deg` since it was first seen, confirmed over
+    `confirm_frames_marks` frames."""
     poses = [h.pose for h in hypotheses]
     # One fitting clearly worse than the best this frame (`frames_behind`) is not a candidate until it fits again.
     keep = [i for i in range(len(poses)) if hypotheses[i].behind == 0 and colour_verdict(hypotheses[i], cfg) != "against"]
@@ -281,7 +281,7 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
         d2 = {i: hypothesis_distance2(prior, hypotheses[i], cfg) for i in keep}
         inside = [i for i in keep if d2[i] <= cfg.prior_gate_chi2]
         if not inside:
-            return Decision(marks_pick, explained=False, kidnap=True, marks=marks_pick is not None)
+            return _by_marks(marks_pick, explained=False)
         # Deciding counts the heading at most `max_decide_yaw_std_deg` wide: a prior whose heading has grown
         # vague still decides for a hypothesis heading where it said (a restarted stage's saved pose, its twin
         # half a turn away), never for one turned a right angle from it (a court of right angles fits such
@@ -299,16 +299,21 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
         # A prior too vague (or too far) to decide does not stop the marks from deciding as they would
         # without it: the robocon2025 twin kept a hypothesis 2-5 cm from the truth undecided for 2.5 s, its
         # twin contradicted by 1392 marks, because the lost track's prior explained it at d^2 10.2, not 9.
-        return Decision(marks_pick, explained, kidnap=True, marks=marks_pick is not None)
+        return _by_marks(marks_pick, explained)
     if court_marks:
-        return Decision(marks_pick, explained, kidnap=True, marks=marks_pick is not None)
+        return _by_marks(marks_pick, explained)
     return Decision(keep[0] if lone else None, explained)
+
+
+def _by_marks(pick: int | None, explained: bool) -> Decision:
+    """What the colour marks decide (`pick`, None: nothing), where no pose prior did."""
+    return Decision(pick, explained, kidnap=True, marks=pick is not None)
 
 
 def _marks_decision(hypotheses: list[Hypothesis], index: int, cfg: AcquireConfig) -> int | None:
     """The lone surviving hypothesis when the colour marks speak for it and it has moved since first seen:
     the marks tell twins apart, not the near-ties of one side (both see the same strip), and a view the
-    search misread stays misread while the robot stands still. Confirmed like a kidnap prior's decision."""
+    search misread stays misread while the robot stands still. Confirmed over `confirm_frames_marks`."""
     h = hypotheses[index]
     moved = math.hypot(*(h.pose[:2] - h.origin[:2])) >= cfg.marks_motion_m or \
         _yaw_diff(h.pose[2], h.origin[2]) >= math.radians(cfg.marks_turn_deg)

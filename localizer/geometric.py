@@ -312,10 +312,8 @@ class GeometricLocalizer:
                 # The evidence disagrees with the track: restart the track there, but one frame is not
                 # enough to answer valid from (a single bad fit at a line end jumped 0.4-0.6 m on the
                 # seed recording): the next frame must agree with the restarted track.
-                return TrackStep(self._status(self._answer(res, res.pose, invalid=True), "jump"),
-                                 motion.start(res.pose, res.fit.covariance, t, mcfg))
-        own_prediction = t is None or state.t is None or t > state.t
-        if guard_regain and res.fit.beyond_jump and res.fit.covariance is not None and own_prediction:
+                return self._jump(res, t)
+        if guard_regain and res.fit.beyond_jump and (t is None or state.t is None or t > state.t):
             # A valid fit farther from the constant-velocity prediction than a track may move is a jump too, not
             # a frame to coast through: the seed twin's fast walk (2.5 m/s) seen at 10 fps reversed at the area's
             # edge, the prediction overshot by 0.5 m, two frames' fits at the truth (100 inliers, 1-2 cm std) were
@@ -324,9 +322,14 @@ class GeometricLocalizer:
             # carried the state to this frame (its time is the frame's): odometry saw the reversal, and such a
             # fit is a misread view (the seed twin's occluded walk, fused, lost its track for 20 s that way); nor
             # for an acquisition's hypotheses (guard_regain False), whose evidence belongs to where they are.
-            return TrackStep(self._status(self._answer(res, res.pose, invalid=True), "jump"),
-                             motion.start(res.pose, res.fit.covariance, t, mcfg))
+            return self._jump(res, t)
         return TrackStep(self._answer(res, pred.pose, invalid=True), motion.coast(pred, mcfg))
+
+    def _jump(self, res: LocalizeResult, t: float | None) -> TrackStep:
+        """A valid fit the track cannot follow: invalid this frame, the track restarted there (`track` turns it
+        into an acquisition between the track's continuation and the fit, `_after_jump`)."""
+        return TrackStep(self._status(self._answer(res, res.pose, invalid=True), "jump"),
+                         motion.start(res.pose, res.fit.covariance, t, self.config.motion))
 
     # ---- acquisition (acquire.py has the rule) ------------------------------------------------------
     def _acquire(self, hits: ProjectedHits, state: acquire.Acquiring, t: float | None,
