@@ -13,7 +13,7 @@ PIP_INSTALL := PYTHONWARNINGS="ignore:Editable installation" $(BIN)/python -m pi
 
 # The C sources are prerequisites so an existing venv recompiles the kernels after an edit. The install
 # is quiet; native_report says so when a kernel did not compile (the numpy twin runs then, slower).
-$(BIN)/courtloc-runtime: pyproject.toml setup.py scan/scan_kernel.c localizer/fit_kernel.c
+$(BIN)/courtloc-runtime: pyproject.toml setup.py scan/scan_kernel.c localizer/fit_kernel.c localizer/search_kernel.c
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(PIP_INSTALL) -e .

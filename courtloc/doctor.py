@@ -27,7 +27,8 @@ from cv2 import videoio_registry
 from courtloc.cliargs import add_json_argument, json_to_stdout
 from courtloc.services.deployment import load_deployment
 
-KERNELS = {"radial scan": "courtloc.scan._scan_kernel", "pose fit": "courtloc.localizer._fit_kernel"}
+KERNELS = {"radial scan": "courtloc.scan._scan_kernel", "pose fit": "courtloc.localizer._fit_kernel",
+           "global search": "courtloc.localizer._search_kernel"}
 ORT_DISTRIBUTIONS = ("onnxruntime", "onnxruntime-gpu")
 # optional extras and what they enable (pit laptop tools)
 EXTRAS = {"foxglove-sdk": "courtloc foxglove", "rosbags": "courtloc export rosbag2 / ros bridge",

@@ -1,6 +1,6 @@
-"""Which compiled kernels this install has, said after `make` installs: silent when both built.
+"""Which compiled kernels this install has, said after `make` installs: silent when all built.
 
-Both kernels are optional at build time (no C compiler: the numpy twin runs, same results, slower), and
+The kernels are optional at build time (no C compiler: the numpy twin runs, same results, slower), and
 pip hides a failed optional build, so the user hears it here. The slow-downs are the measured ones of
 docs/measurements.md.
 """
@@ -15,6 +15,8 @@ KERNELS: tuple[tuple[str, str, str], ...] = (
      "the numpy radial scan (scan/radial_scan.py)", "~1.8x slower per frame"),
     ("courtloc.localizer._fit_kernel",
      "the numpy pose fit (localizer/fit.py) with onnxruntime's floor lookup", "~10x slower per tracked frame"),
+    ("courtloc.localizer._search_kernel",
+     "the numpy global search (localizer/search.py)", "~5x slower per searching frame"),
 )
 
 
