@@ -31,6 +31,9 @@ at the frame's time). Vision fixes then correct it exactly as before (gate, fuse
   that the prediction itself contradicts (at least `min_hits_to_contradict`, of which less than
   `min_explained` lie on a paint edge with the robot at the predicted pose, no fit): too few lines to fit
   are still lines where the odometry's pose has none.
+- **Acquisition.** While the localizer holds hypotheses instead of a track, odometry moves each of them (and
+  the lost track's prior) to the frame, as it moves the track: the robot's motion is the same whichever of
+  them is the truth.
 - **Kidnap.** Vision and odometry disagreeing (a fix that restarts the track far outside the odometry
   prediction's covariance, or `disagree_frames` frames in a row with court lines in view but no fix
   near the prediction) marks every pose invalid (`odometry_disagrees`) and makes the tracker search
@@ -417,6 +420,25 @@ class OdometryFusion:
 
         return replace(prior, carry=at)
 
+    def carry_hypotheses(self, state: acquire.Acquiring, t: Optional[float]) -> acquire.Acquiring:
+        """The acquisition's hypotheses moved to the frame time t by odometry, each from its own pose (the wheels
+        and the gyro measure the robot's motion wherever it is), their covariances grown by its noise; a
+        hypothesis odometry cannot reach keeps the constant-velocity prediction. A hypothesis starts from one fit,
+        without a velocity: predicted at constant velocity it stays where it was seen, and a view of lines along
+        one direction (free along them) cannot pull it after the robot, so its fits there are not valid and do
+        not confirm it (replays of the twin's fused runs at 10 fps, robocon2025 `randomised`: 84.6 -> 93.8 %
+        valid)."""
+        if t is None or not state.hypotheses:
+            return state
+        moved = []
+        for h in state.hypotheses:
+            st = h.state
+            delta = None if st.t is None or t <= st.t else self.buffer.delta(st.t, t, self.config.max_extrapolate_s)
+            if delta is not None:
+                st = replace(self._advance(st, delta, t), lost=st.lost)
+            moved.append(replace(h, state=st))
+        return replace(state, hypotheses=tuple(moved))
+
     def holds(self, state: Optional[motion.MotionState], t: Optional[float]) -> bool:
         """Whether odometry carried `state` to this frame (t) after a fix, with no kidnap suspected."""
         return isinstance(state, motion.MotionState) and t is not None and self._predicted_t == t \
@@ -585,10 +607,12 @@ def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, w
 
     Without fusion it is exactly `predictor.track`."""
     if fusion is None or not isinstance(state, (motion.MotionState, type(None))):
-        # Without fusion, or while the localizer acquires (its state is the evidence between hypotheses,
-        # not a track odometry could move): `predictor.track`, only the acquisition's prior carried.
-        if fusion is not None and isinstance(state, acquire.Acquiring) and state.prior is not None:
-            state = replace(state, prior=fusion.carry_prior(state.prior))
+        # Without fusion, or while the localizer acquires (its state is the evidence between hypotheses, not one
+        # track): `predictor.track`, with the acquisition's hypotheses and prior carried by odometry.
+        if fusion is not None and isinstance(state, acquire.Acquiring):
+            state = fusion.carry_hypotheses(state, t)
+            if state.prior is not None:
+                state = replace(state, prior=fusion.carry_prior(state.prior))
         pred, after = predictor.track(hits, width, height, state, t=t, marks=marks)
         if fusion is not None and pred.valid and isinstance(after, motion.MotionState):
             fusion.note_acquired(after, t, len(hits))

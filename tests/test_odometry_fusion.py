@@ -467,3 +467,35 @@ def test_after_a_contradiction_odometry_vouches_again_only_after_two_fixes_in_a_
     assert frame(valid=True, fused_by_vision=True, n_hits=60) == (True, "")  # two in a row
     assert frame(valid=False, fused_by_vision=False, n_hits=14) == (True, "")  # bridged again
     assert fusion.counts["blind_in_doubt"] == 2 and fusion.counts["fix_in_doubt"] == 2
+
+
+def test_the_acquisitions_hypotheses_move_with_the_odometry(robocon2025_twin) -> None:
+    """While acquiring, each hypothesis is carried by the odometry from its own pose (and its mirror twin from its
+    own): the robot drove 0.3 m ahead into a view along one direction of lines (robocon2025, near the centre, as
+    after the twin's second kidnap), which cannot pull a hypothesis along them. Without odometry the hypothesis,
+    started from one fit and so without a velocity, stays where it was first seen, 0.3 m behind the robot."""
+    from courtloc.localizer import acquire
+    from courtloc.localizer.fit import fit_pose
+    from courtloc.localizer.odometry_fusion import fused_track
+    from courtloc.localizer.symmetry import mirror
+    from courtloc.sim.edges import scan_hits
+
+    predictor, renderer = robocon2025_twin
+    loc = predictor.localizer
+    seen_at = np.array([0.14, -0.77, 1.85])
+    now_at = seen_at + (0.3 * math.cos(seen_at[2]), 0.3 * math.sin(seen_at[2]), 0.0)
+    hits = scan_hits(renderer.render(tuple(now_at)))
+    at_truth = fit_pose(loc.field, predictor.projected_hits(hits), now_at, loc.config.fit, loc.config.quality)
+    assert not at_truth.valid and at_truth.position_std_m > 1.0  # the view does not pin the position
+    fusion = OdometryFusion(FusionConfig(enabled=True))
+    for i in range(61):  # 0.3 m straight ahead in 0.6 s
+        fusion.offer(odometry(i * 0.01, 0.3 * i / 60, seq=i), i * 0.01)
+    cov = np.diag([1e-4, 1e-4, 1e-5])
+    seen = acquire.Hypothesis(motion.start(seen_at, cov, 0.0, loc.config.motion), seen_at.copy(), 0.0, cov[:2, :2], True)
+    answer, after, _ = fused_track(predictor, fusion, hits, 640, 480, acquire.Acquiring(None, (seen,), 0, 0), 0.6)
+    assert not answer.valid and isinstance(after, acquire.Acquiring)
+    poses = [h.pose for h in after.hypotheses]
+    for expected in (now_at, mirror(now_at)):
+        nearest = min(poses, key=lambda p: math.hypot(*(p[:2] - expected[:2])))
+        assert math.hypot(*(nearest[:2] - expected[:2])) < 0.02, (nearest, expected)
+        assert abs(math.remainder(nearest[2] - expected[2], 2 * math.pi)) < math.radians(0.5)
