@@ -10,7 +10,9 @@ table lookup + geometry + the whole fit in C, what runs when the kernel is built
 core (taskset -c 0) to measure "one CPU core". `--compare-sequential` also times the path that fits a
 frame's starts one at a time (the pre-batching tracking path). `tracking_filtered` times what the infer
 stage runs per frame: `GeometricPredictor.track`, the same fit from the motion filter's prediction plus the
-filter's predict and update (a state started at the perturbed pose one frame period earlier).
+filter's predict and update (a state started at the perturbed pose one frame period earlier). `global_search`
+times the court search's candidates alone (search.py: the cost volume and its lowest poses), compiled
+(search_kernel.c) and numpy side by side: what an acquiring frame of the infer stage runs once or twice.
 """
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ from courtloc.localizer import motion
 from courtloc.localizer.fit import kernel_active, kernel_enabled
 from courtloc.localizer.geometric import GeometricLocalizer
 from courtloc.localizer.predictor import load_predictor
+from courtloc.localizer.search import kernel_available as search_kernel_available
 from courtloc.sim.edges import scan_hits
 from courtloc.sim.render import Renderer
 
@@ -88,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
 
     motion_cfg = predictor.localizer.config.motion
     ms: dict[str, list[float]] = {k: [] for k in ("track", "track_numpy", "cold", "cold_numpy", "onnx", "seq",
-                                                 "filtered")}
+                                                 "filtered", "search", "search_numpy")}
+    coarse = predictor.localizer.search
     errors, path_diff, seq_diff = [], [], []
 
     def idle() -> None:
@@ -122,6 +126,10 @@ def run(args: argparse.Namespace) -> int:
                 ms["seq"].append(t)
                 seq_diff.append(math.hypot(res.pose[0] - pred.x, res.pose[1] - pred.y))
         for _ in range(args.cold_repeats):
+            projected = predictor.projected_hits(hits)
+            ms["search"].append(_timed(lambda: coarse.candidates(projected))[0])
+            with kernel_enabled(False):
+                ms["search_numpy"].append(_timed(lambda: coarse.candidates(projected))[0])
             t, pred = _timed(lambda: predictor.predict(hits, w, h))
             ms["cold"].append(t)
             if compiled:
@@ -134,6 +142,8 @@ def run(args: argparse.Namespace) -> int:
         "compiled_kernel": compiled,
         "tracking": _stats(ms["track"]), "tracking_filtered": _stats(ms["filtered"]), "cold_start": _stats(ms["cold"]),
         "onnx_hits_to_floor": _stats(ms["onnx"]),
+        "global_search": _stats(ms["search"]), "global_search_numpy": _stats(ms["search_numpy"]),
+        "compiled_search_kernel": search_kernel_available(),
         "tracking_error_median_m": float(np.median(errors)),
     }
     if compiled:
@@ -143,6 +153,8 @@ def run(args: argparse.Namespace) -> int:
             result["cold_start_numpy"] = _stats(ms["cold_numpy"])
             result["cold_start_speedup_median"] = float(np.median(ms["cold_numpy"]) / np.median(ms["cold"]))
         result["kernel_vs_numpy_max_diff_m"] = float(np.max(path_diff))
+    if search_kernel_available() and ms["search"]:
+        result["global_search_speedup_median"] = float(np.median(ms["search_numpy"]) / np.median(ms["search"]))
     if sequential is not None:
         result["tracking_sequential_starts"] = _stats(ms["seq"])
         result["sequential_vs_batched_max_diff_m"] = float(np.max(seq_diff))

@@ -27,10 +27,15 @@ from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.projection import ProjectedHits
 from courtloc.world.angles import wrap_angle
 
-# The compiled kernel (fit_kernel.c) when it was built; this file's numpy code is the reference it is
-# tested against and the fallback without a compiler. A context variable, so that switching it for a
-# comparison (tests, `courtloc bench localize`) does not leak into other threads.
+# The compiled kernels (fit_kernel.c here, search_kernel.c for the global search) when they were built; the
+# numpy code is the reference they are tested against and the fallback without a compiler. A context variable,
+# so that switching them for a comparison (tests, `courtloc bench localize`) does not leak into other threads.
 _use_kernel: ContextVar[bool] = ContextVar("courtloc_fit_kernel", default=True)
+
+
+def kernels_wanted() -> bool:
+    """Whether this context asks for the compiled kernels (`kernel_enabled`), built or not."""
+    return _use_kernel.get()
 
 
 def kernel_active() -> bool:
@@ -40,7 +45,8 @@ def kernel_active() -> bool:
 
 @contextmanager
 def kernel_enabled(enabled: bool) -> Iterator[bool]:
-    """Within the block fit_poses uses the compiled kernel (if built) or numpy; yields kernel_active()."""
+    """Within the block fit_poses and the global search use the compiled kernels (if built) or numpy; yields
+    kernel_active() (the fit's)."""
     token = _use_kernel.set(enabled)
     try:
         yield kernel_active()

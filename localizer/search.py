@@ -7,7 +7,7 @@ court is point-symmetric, so (x, y, yaw + 180) is the mirror (-x, -y) of a pose 
 caller picks between the two (symmetry.py).
 
 The sums run in C when the optional extension was built (search_kernel.c, bit-identical to `accumulate_numpy`,
-which runs otherwise): the numpy loop is ~3,600 array adds a frame, 10-14 ms on the development machine, and a
+which runs otherwise, or within `fit.kernel_enabled(False)`): the numpy loop is ~3,600 array adds a frame, 10-14 ms on the development machine, and a
 searching frame then outlasted a 30 fps frame interval (the infer stage dropped frames while acquiring).
 """
 from __future__ import annotations
@@ -18,6 +18,7 @@ import numpy as np
 
 from courtloc.localizer.config import SearchConfig
 from courtloc.localizer.court_field import CourtField
+from courtloc.localizer.fit import kernels_wanted
 from courtloc.localizer.projection import ProjectedHits
 
 try:
@@ -46,8 +47,8 @@ def accumulate_numpy(values: np.ndarray, dx: np.ndarray, dy: np.ndarray, rows: t
 
 def accumulate(values: np.ndarray, dx: np.ndarray, dy: np.ndarray, rows: tuple[int, int], cols: tuple[int, int],
                out: np.ndarray) -> None:
-    """`accumulate_numpy`, compiled when the extension was built."""
-    if _search_kernel is None:
+    """`accumulate_numpy`, compiled when the extension was built (and `fit.kernel_enabled` does not say no)."""
+    if _search_kernel is None or not kernels_wanted():
         accumulate_numpy(values, dx, dy, rows, cols, out)
         return
     ny, nx = values.shape
@@ -99,19 +100,24 @@ class CoarseSearch:
             near = near[np.linspace(0, len(near) - 1, self.cfg.max_points).round().astype(int)]
         return hits.points[near]
 
-    def costs(self, hits: ProjectedHits) -> np.ndarray:
-        """(n_yaw, n_ty, n_tx) mean clipped distance of the selected hits for every grid pose."""
+    def offsets(self, hits: ProjectedHits) -> tuple[np.ndarray, np.ndarray]:
+        """(n_yaw, n_selected) int32 column and row offsets of each selected hit, rotated by each yaw, into the
+        padded field."""
         pts = self._select(hits)
-        h, w = self.i1 - self.i0, self.j1 - self.j0
-        out = np.zeros((len(self.yaws), h, w), np.float32)
-        if len(pts) == 0:
-            out[:] = self.cfg.clip_m
-            return out
         c, s = np.cos(self.yaws)[:, None], np.sin(self.yaws)[:, None]
         dx = np.rint((c * pts[:, 0] - s * pts[:, 1]) / self.res).astype(np.int32) + self.pad
         dy = np.rint((s * pts[:, 0] + c * pts[:, 1]) / self.res).astype(np.int32) + self.pad
+        return dx, dy
+
+    def costs(self, hits: ProjectedHits) -> np.ndarray:
+        """(n_yaw, n_ty, n_tx) mean clipped distance of the selected hits for every grid pose."""
+        dx, dy = self.offsets(hits)
+        out = np.zeros((len(self.yaws), self.i1 - self.i0, self.j1 - self.j0), np.float32)
+        if dx.shape[1] == 0:
+            out[:] = self.cfg.clip_m
+            return out
         accumulate(self.values, dx, dy, (self.i0, self.i1), (self.j0, self.j1), out)
-        out /= len(pts)
+        out /= dx.shape[1]
         return out
 
     def candidates(self, hits: ProjectedHits) -> list[np.ndarray]:
