@@ -124,7 +124,8 @@ class AcquireConfig(BaseModel):
                                       "has already moved marks_motion_m or turned marks_turn_deg since first seen)")
     tight_prior_m: float = Field(1.0, gt=0, description="a pose prior this well known (std, grown by its age) is "
                                  "tight")
-    research_frames: int = Field(15, ge=1, description="while undecided, search the court again this often")
+    research_frames: int = Field(15, ge=1, description="while undecided, search the court again this often (and "
+                                 "on the next frame when colour marks in view lie on no hypothesis's own colour)")
     motion_sigma_mps: float = Field(0.5, gt=0, description="a pose prior's position std grows this much per second")
     yaw_sigma_rps: float = Field(0.75, gt=0, description="... and its heading std, radians per second")
     prior_gate_chi2: float = Field(16.0, gt=0, description="a hypothesis farther from a pose prior (d^2) is not "

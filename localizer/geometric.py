@@ -365,8 +365,14 @@ class GeometricLocalizer:
         live = [live[i] for i in kept]
         points = marks() if self.mark_map is not None and marks is not None else None
         if points is not None and len(points):
-            live = [(res, replace(h, marks=tuple(a + b for a, b in zip(h.marks, self.mark_map.evidence(h.pose, points)))))
-                    for res, h in live]
+            seen = [self.mark_map.evidence(h.pose, points) for _, h in live]
+            live = [(res, replace(h, marks=tuple(a + b for a, b in zip(h.marks, ev)))) for (res, h), ev in zip(live, seen)]
+            if len(points) >= acfg.marks_min and all(own < len(points) / 2 for own, _ in seen):
+                # Colour marks in view that no hypothesis puts on their own colour: the robot is none of them
+                # (or the marks are an occluder's), so the court is searched again next frame, not research_frames
+                # later (the robocon2025 twin's first kidnap, replayed: the truth, showing 66 marks, was found
+                # only by the search 15 frames after the first, 0.5 s of usable views later).
+                since = max(since, acfg.research_frames)
         hypotheses = tuple(h for _, h in live)
         if not live:
             fit = searched or fit_pose(self.field, hits, np.zeros(3), cfg.fit, cfg.quality)

@@ -132,3 +132,31 @@ def test_a_marks_decision_is_confirmed_over_its_own_frames_not_the_kidnap_priors
         loc.config = saved
     assert answers[-1].valid, [a.reason for a in answers]
     assert all(math.hypot(a.x - t[0], a.y - t[1]) < 0.3 for a, t in zip(answers, truths) if a.valid)
+
+
+def test_colour_marks_no_hypothesis_explains_make_the_next_frame_search_the_court(robocon) -> None:  # noqa: ANN001
+    """Acquiring with a wrong pair of hypotheses (a pose 6 m from the robot and its mirror twin) while the robot,
+    facing the red strip, sees it: no hypothesis puts the marks on their own colour, so the next frame searches
+    the court (not `research_frames` frames later) and finds the truth. The same frames without marks wait."""
+    from courtloc.localizer import acquire, motion
+
+    predictor, preprocessor, renderer = robocon
+    loc = predictor.localizer
+    truths = _drive(np.array(FACING_RED[0]), 2, 0.05)
+    frames = [renderer.render(tuple(t), RenderOptions(), np.random.default_rng(k)) for k, t in enumerate(truths)]
+    cov = np.diag([1e-4, 1e-4, 1e-5])
+    wrong = np.array([-2.0, -1.0, 0.7])
+    hypotheses = tuple(acquire.Hypothesis(motion.start(p, cov, 0.0, loc.config.motion), p.copy(), 0.0, cov[:2, :2], True)
+                       for p in (wrong, mirror(wrong)))
+    for use_marks in (True, False):
+        state: object = acquire.Acquiring(None, hypotheses, 0, 0)
+        for k, frame in enumerate(frames):
+            marks = preprocessor.marks(frame) if use_marks else None
+            if use_marks and k == 0:
+                assert len(mark_points(predictor.floor_table, predictor.width, marks)) >= loc.config.acquire.marks_min
+            _, state = predictor.track(preprocessor.process(frame), 640, 480, state, t=(k + 1) / 30.0, marks=marks)
+            assert isinstance(state, acquire.Acquiring)
+            if k == 0:
+                assert (state.since_search >= loc.config.acquire.research_frames) == use_marks, state.since_search
+        found = any(math.hypot(*(h.pose[:2] - truths[-1][:2])) < 0.3 for h in state.hypotheses)
+        assert found == use_marks, [np.round(h.pose, 2) for h in state.hypotheses]
