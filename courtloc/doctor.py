@@ -25,10 +25,10 @@ import zenoh
 from cv2 import videoio_registry
 
 from courtloc.cliargs import add_json_argument, json_to_stdout
+from courtloc.native_report import KERNELS as NATIVE_KERNELS
 from courtloc.services.deployment import load_deployment
 
-KERNELS = {"radial scan": "courtloc.scan._scan_kernel", "pose fit": "courtloc.localizer._fit_kernel",
-           "global search": "courtloc.localizer._search_kernel"}
+KERNELS = {label: module for label, module, _, _ in NATIVE_KERNELS}
 ORT_DISTRIBUTIONS = ("onnxruntime", "onnxruntime-gpu")
 # optional extras and what they enable (pit laptop tools)
 EXTRAS = {"foxglove-sdk": "courtloc foxglove", "rosbags": "courtloc export rosbag2 / ros bridge",

@@ -9,20 +9,21 @@ from __future__ import annotations
 import importlib
 import sys
 
-# module, what runs instead, how much slower (docs/measurements.md: bench preprocess / bench localize)
-KERNELS: tuple[tuple[str, str, str], ...] = (
-    ("courtloc.scan._scan_kernel",
+# label (courtloc doctor), module, what runs instead, how much slower (docs/measurements.md: bench preprocess /
+# bench localize)
+KERNELS: tuple[tuple[str, str, str, str], ...] = (
+    ("radial scan", "courtloc.scan._scan_kernel",
      "the numpy radial scan (scan/radial_scan.py)", "~1.8x slower per frame"),
-    ("courtloc.localizer._fit_kernel",
+    ("pose fit", "courtloc.localizer._fit_kernel",
      "the numpy pose fit (localizer/fit.py) with onnxruntime's floor lookup", "~10x slower per tracked frame"),
-    ("courtloc.localizer._search_kernel",
-     "the numpy global search (localizer/search.py)", "~5x slower per searching frame"),
+    ("global search", "courtloc.localizer._search_kernel",
+     "the numpy global search (localizer/search.py)", "~2.5x slower per searching frame"),
 )
 
 
 def missing_kernels() -> list[tuple[str, str, str]]:
     missing = []
-    for module, fallback, cost in KERNELS:
+    for _, module, fallback, cost in KERNELS:
         try:
             importlib.import_module(module)
         except ImportError:
