@@ -36,7 +36,10 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    seen, is decided whenever a pose prior does not decide itself (too vague, or explaining none). An unpinned
    hypothesis is never decided, and it competes with the others anywhere along its free direction (its
    covariance counts in d^2): a degenerate view of the truth beside a valid fit of a wrong place keeps
-   both undecided, and usually the wrong one dies of the cost tie.
+   both undecided, and usually the wrong one dies of the cost tie. On a court with colour marks, a frame whose
+   marks a pinned hypothesis puts on their own colour removes the unpinned ones whose free line puts them there
+   nowhere within the robot's area, or only near a pinned one of the same heading on that line
+   (`GeometricLocalizer._placed_by_marks`).
 3. Confirmation. The decided hypothesis must be the one answer for `confirm_frames` frames in a row
    with a valid fit (`confirm_frames_tight` when a pose prior known to `tight_prior_m` decided: a wrong
    basin that close to a known pose is what tracking risks anyway); each of those frames searches the

@@ -58,11 +58,30 @@ class MarkMap:
         c, s = np.cos(yaw), np.sin(yaw)
         px, py = marks.points[:, 0], marks.points[:, 1]
         court_xy = np.stack([x + c * px - s * py, y + s * px + c * py, np.ones_like(px)])
+        own, other = self._painted(court_xy, marks.index)
+        return int(np.count_nonzero(own)), int(np.count_nonzero(other))
+
+    def evidence_along(self, pose: np.ndarray, direction: np.ndarray, offsets: np.ndarray,
+                       marks: MarkPoints) -> tuple[np.ndarray, np.ndarray]:
+        """`evidence` at `pose` moved by each of `offsets` (m) along the unit `direction` (x, y), heading kept:
+        (own, other) count arrays, one entry per offset."""
+        if len(marks) == 0:
+            return np.zeros(len(offsets), np.int64), np.zeros(len(offsets), np.int64)
+        x, y, yaw = (float(v) for v in pose)
+        c, s = np.cos(yaw), np.sin(yaw)
+        px, py = marks.points[:, 0], marks.points[:, 1]
+        cx = (x + c * px - s * py)[None, :] + offsets[:, None] * float(direction[0])
+        cy = (y + s * px + c * py)[None, :] + offsets[:, None] * float(direction[1])
+        court_xy = np.stack([cx.ravel(), cy.ravel(), np.ones(cx.size)])
+        own, other = self._painted(court_xy, np.tile(marks.index, len(offsets)))
+        return own.reshape(len(offsets), -1).sum(axis=1), other.reshape(len(offsets), -1).sum(axis=1)
+
+    def _painted(self, court_xy: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For (3, N) homogeneous court points of marks `index`: on their own colour, on another mark's."""
         col, row = np.rint(self.court_to_texel[:2] @ court_xy).astype(np.int64)
         h, w = self.labels.shape
         on_map = (row >= 0) & (row < h) & (col >= 0) & (col < w)
-        painted = np.zeros(len(marks), np.int64)
+        painted = np.zeros(court_xy.shape[1], np.int64)
         painted[on_map] = self.labels[row[on_map], col[on_map]]
-        own = painted == marks.index + 1
-        other = (painted > 0) & ~own
-        return int(np.count_nonzero(own)), int(np.count_nonzero(other))
+        own = painted == index + 1
+        return own, (painted > 0) & ~own

@@ -160,3 +160,38 @@ def test_colour_marks_no_hypothesis_explains_make_the_next_frame_search_the_cour
                 assert (state.since_search >= loc.config.acquire.research_frames) == use_marks, state.since_search
         found = any(math.hypot(*(h.pose[:2] - truths[-1][:2])) < 0.3 for h in state.hypotheses)
         assert found == use_marks, [np.round(h.pose, 2) for h in state.hypotheses]
+
+
+def test_colour_marks_place_an_unpinned_hypothesis_along_its_line(robocon) -> None:  # noqa: ANN001
+    """An unpinned hypothesis (a view of lines along one direction: free along them) keeps every other from being
+    decided. Facing the red strip, with the truth pinned: one on the mirror twin's side, whose line nowhere puts the
+    red marks on red within the court, is not the robot; one whose line passes through the truth is the truth seen
+    unpinned; one whose line runs along the strip (the marks fit all along it) stays, and so does every one while no
+    pinned hypothesis puts the marks on their own colour."""
+    from courtloc.localizer import acquire, motion
+
+    predictor, preprocessor, renderer = robocon
+    loc = predictor.localizer
+    truth = np.array(FACING_RED[0])
+    frame = renderer.render(tuple(truth), RenderOptions(), np.random.default_rng(0))
+    points = mark_points(predictor.floor_table, predictor.width, preprocessor.marks(frame))
+    assert len(points) >= loc.config.acquire.marks_min
+
+    def hypothesis(pose: np.ndarray, free: tuple[float, float] | None) -> tuple[object, acquire.Hypothesis]:
+        cov = np.diag([1e-4, 1e-4, 1e-5])
+        if free is not None:  # 2 m std along `free`
+            u = np.array(free) / math.hypot(*free)
+            cov[:2, :2] += 4.0 * np.outer(u, u)
+        return None, acquire.Hypothesis(motion.start(pose, cov, 0.0, loc.config.motion), pose.copy(), 0.0,
+                                        cov[:2, :2], free is None)
+
+    # Lines across the strip (free along y) and along it (free along x).
+    twin_side = mirror(truth) + (0.0, 1.5, 0.0)
+    on_truths_line = truth - (0.0, 1.5, 0.0)
+    along_strip = truth + (2.0, 0.0, 0.0)
+    live = [hypothesis(truth, None), hypothesis(twin_side, (0.0, 1.0)), hypothesis(on_truths_line, (0.0, 1.0)),
+            hypothesis(along_strip, (1.0, 0.0))]
+    kept = [h.pose for _, h in loc._placed_by_marks(live, points)]
+    assert len(kept) == 2 and np.allclose(kept[0], truth) and np.allclose(kept[1], along_strip), kept
+    unpinned_only = live[1:]
+    assert len(loc._placed_by_marks(unpinned_only, points)) == 3
