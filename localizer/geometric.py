@@ -379,7 +379,7 @@ class GeometricLocalizer:
                 # later (the robocon2025 twin's first kidnap, replayed: the truth, showing 66 marks, was found
                 # only by the search 15 frames after the first, 0.5 s of usable views later).
                 since = max(since, acfg.research_frames)
-            live = self._placed_by_marks(live, points)
+            live = self._placed_by_marks(live, points, seen)
         hypotheses = tuple(h for _, h in live)
         if not live:
             fit = searched or fit_pose(self.field, hits, np.zeros(3), cfg.fit, cfg.quality)
@@ -473,8 +473,8 @@ class GeometricLocalizer:
                                      f.valid)) for f in fits]
         return found, lowest, None if ok[0].valid else ok[0].cost
 
-    def _placed_by_marks(self, live: list[tuple[LocalizeResult, acquire.Hypothesis]],
-                         points: MarkPoints) -> list[tuple[LocalizeResult, acquire.Hypothesis]]:
+    def _placed_by_marks(self, live: list[tuple[LocalizeResult, acquire.Hypothesis]], points: MarkPoints,
+                         seen: list[tuple[int, int]]) -> list[tuple[LocalizeResult, acquire.Hypothesis]]:
         """Without the unpinned hypotheses the frame's colour marks place nowhere else than a pinned one.
 
         An unpinned hypothesis stands for every pose along its free line, and keeps the others from being decided
@@ -482,16 +482,13 @@ class GeometricLocalizer:
         not an occluder's), the marks are looked for along the unpinned one's line, heading kept: where they lie
         on their own colour nowhere along it, it is not the robot; where they do only within `MARKS_PLACE_M` of a
         pinned hypothesis of its heading on its line, it is that one. Where they fit elsewhere along the line (a
-        line along a strip), it stays. The truth's own line passes through the truth, where its marks fit."""
+        line along a strip), it stays. The truth's own line passes through the truth, where its marks fit.
+        `seen`: each hypothesis's (own, other) marks this frame."""
         acfg = self.config.acquire
         if len(points) < acfg.marks_min:
             return live
-        explaining = []
-        for _, h in live:
-            if h.pinned:
-                own, other = self.mark_map.evidence(h.pose, points)
-                if own >= acfg.marks_min and own >= acfg.marks_ratio * other:
-                    explaining.append(h)
+        explaining = [h for (_, h), (own, other) in zip(live, seen)
+                      if h.pinned and own >= acfg.marks_min and own >= acfg.marks_ratio * other]
         if not explaining:
             return live
         offsets = np.arange(-MARKS_LINE_REACH_M, MARKS_LINE_REACH_M + 1e-9, MARKS_LINE_STEP_M)

@@ -191,7 +191,7 @@ def test_colour_marks_place_an_unpinned_hypothesis_along_its_line(robocon) -> No
     along_strip = truth + (2.0, 0.0, 0.0)
     live = [hypothesis(truth, None), hypothesis(twin_side, (0.0, 1.0)), hypothesis(on_truths_line, (0.0, 1.0)),
             hypothesis(along_strip, (1.0, 0.0))]
-    kept = [h.pose for _, h in loc._placed_by_marks(live, points)]
+    seen = [loc.mark_map.evidence(h.pose, points) for _, h in live]
+    kept = [h.pose for _, h in loc._placed_by_marks(live, points, seen)]
     assert len(kept) == 2 and np.allclose(kept[0], truth) and np.allclose(kept[1], along_strip), kept
-    unpinned_only = live[1:]
-    assert len(loc._placed_by_marks(unpinned_only, points)) == 3
+    assert len(loc._placed_by_marks(live[1:], points, seen[1:])) == 3
