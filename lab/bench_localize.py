@@ -125,8 +125,8 @@ def run(args: argparse.Namespace) -> int:
                 t, res = _timed(lambda: sequential.localize(predictor.projected_hits(hits), start))
                 ms["seq"].append(t)
                 seq_diff.append(math.hypot(res.pose[0] - pred.x, res.pose[1] - pred.y))
+        projected = predictor.projected_hits(hits)
         for _ in range(args.cold_repeats):
-            projected = predictor.projected_hits(hits)
             ms["search"].append(_timed(lambda: coarse.candidates(projected))[0])
             with kernel_enabled(False):
                 ms["search_numpy"].append(_timed(lambda: coarse.candidates(projected))[0])

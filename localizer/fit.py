@@ -40,7 +40,7 @@ def kernels_wanted() -> bool:
 
 def kernel_active() -> bool:
     """Whether fit_poses (and the predictor's hits -> geometry step) run compiled in this context."""
-    return fit_kernel.available() and _use_kernel.get()
+    return fit_kernel.available() and kernels_wanted()
 
 
 @contextmanager

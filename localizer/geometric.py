@@ -372,7 +372,8 @@ class GeometricLocalizer:
         points = marks() if self.mark_map is not None and marks is not None else None
         if points is not None and len(points):
             seen = [self.mark_map.evidence(h.pose, points) for _, h in live]
-            live = [(res, replace(h, marks=tuple(a + b for a, b in zip(h.marks, ev)))) for (res, h), ev in zip(live, seen)]
+            live = [(res, replace(h, marks=tuple(a + b for a, b in zip(h.marks, ev))))
+                    for (res, h), ev in zip(live, seen)]
             if len(points) >= acfg.marks_min and all(own < len(points) / 2 for own, _ in seen):
                 # Colour marks in view that no hypothesis puts on their own colour: the robot is none of them
                 # (or the marks are an occluder's), so the court is searched again next frame, not research_frames
@@ -612,17 +613,18 @@ class GeometricLocalizer:
         for other in fits[1:]:
             if other.cost < first.cost:
                 first = other
-        if first.valid and math.hypot(*(first.pose[:2] - prev[:2])) <= cfg.track_max_jump_m:
+
+        def within_jump(fit: FitResult) -> bool:
+            return fit.valid and math.hypot(*(fit.pose[:2] - prev[:2])) <= cfg.track_max_jump_m
+
+        if within_jump(first):
             return first
         best = first
-        restarts = self._fit_starts(hits, prev + np.array(_TRACK_RESTARTS))
-        for res in restarts:
-            ok = res.valid and math.hypot(*(res.pose[:2] - prev[:2])) <= cfg.track_max_jump_m
-            best_ok = best.valid and math.hypot(*(best.pose[:2] - prev[:2])) <= cfg.track_max_jump_m
-            if (ok, -res.cost) > (best_ok, -best.cost):
+        for res in self._fit_starts(hits, prev + np.array(_TRACK_RESTARTS)):
+            if (within_jump(res), -res.cost) > (within_jump(best), -best.cost):
                 best = res
-        if best.valid and math.hypot(*(best.pose[:2] - prev[:2])) > cfg.track_max_jump_m:
-            best = FitResult(**{**best.__dict__, "valid": False, "quality": min(best.quality, 0.49), "beyond_jump": True})
+        if best.valid and not within_jump(best):
+            best = replace(best, valid=False, quality=min(best.quality, 0.49), beyond_jump=True)
         return best
 
     def _fit_starts(self, hits: ProjectedHits, starts: np.ndarray) -> list[FitResult]:

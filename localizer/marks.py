@@ -54,11 +54,8 @@ class MarkMap:
         """(marks on their own colour, marks on another mark's colour) when the robot stands at `pose`."""
         if len(marks) == 0:
             return 0, 0
-        x, y, yaw = (float(v) for v in pose)
-        c, s = np.cos(yaw), np.sin(yaw)
-        px, py = marks.points[:, 0], marks.points[:, 1]
-        court_xy = np.stack([x + c * px - s * py, y + s * px + c * py, np.ones_like(px)])
-        own, other = self._painted(court_xy, marks.index)
+        cx, cy = self._on_court(pose, marks)
+        own, other = self._painted(np.stack([cx, cy, np.ones_like(cx)]), marks.index)
         return int(np.count_nonzero(own)), int(np.count_nonzero(other))
 
     def evidence_along(self, pose: np.ndarray, direction: np.ndarray, offsets: np.ndarray,
@@ -67,14 +64,20 @@ class MarkMap:
         (own, other) count arrays, one entry per offset."""
         if len(marks) == 0:
             return np.zeros(len(offsets), np.int64), np.zeros(len(offsets), np.int64)
-        x, y, yaw = (float(v) for v in pose)
-        c, s = np.cos(yaw), np.sin(yaw)
-        px, py = marks.points[:, 0], marks.points[:, 1]
-        cx = (x + c * px - s * py)[None, :] + offsets[:, None] * float(direction[0])
-        cy = (y + s * px + c * py)[None, :] + offsets[:, None] * float(direction[1])
+        cx, cy = self._on_court(pose, marks)
+        cx = cx[None, :] + offsets[:, None] * float(direction[0])
+        cy = cy[None, :] + offsets[:, None] * float(direction[1])
         court_xy = np.stack([cx.ravel(), cy.ravel(), np.ones(cx.size)])
         own, other = self._painted(court_xy, np.tile(marks.index, len(offsets)))
         return own.reshape(len(offsets), -1).sum(axis=1), other.reshape(len(offsets), -1).sum(axis=1)
+
+    @staticmethod
+    def _on_court(pose: np.ndarray, marks: MarkPoints) -> tuple[np.ndarray, np.ndarray]:
+        """The marks' court x and y with the robot at `pose`."""
+        x, y, yaw = (float(v) for v in pose)
+        c, s = np.cos(yaw), np.sin(yaw)
+        px, py = marks.points[:, 0], marks.points[:, 1]
+        return x + c * px - s * py, y + s * px + c * py
 
     def _painted(self, court_xy: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """For (3, N) homogeneous court points of marks `index`: on their own colour, on another mark's."""

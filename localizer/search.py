@@ -7,8 +7,9 @@ court is point-symmetric, so (x, y, yaw + 180) is the mirror (-x, -y) of a pose 
 caller picks between the two (symmetry.py).
 
 The sums run in C when the optional extension was built (search_kernel.c, bit-identical to `accumulate_numpy`,
-which runs otherwise, or within `fit.kernel_enabled(False)`): the numpy loop is ~3,600 array adds a frame, 10-14 ms on the development machine, and a
-searching frame then outlasted a 30 fps frame interval (the infer stage dropped frames while acquiring).
+which runs otherwise, or within `fit.kernel_enabled(False)`): the numpy loop is ~3,600 array adds a frame,
+10-14 ms on the development machine, and a searching frame then outlasted a 30 fps frame interval (the infer
+stage dropped frames while acquiring).
 """
 from __future__ import annotations
 

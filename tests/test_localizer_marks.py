@@ -146,8 +146,8 @@ def test_colour_marks_no_hypothesis_explains_make_the_next_frame_search_the_cour
     frames = [renderer.render(tuple(t), RenderOptions(), np.random.default_rng(k)) for k, t in enumerate(truths)]
     cov = np.diag([1e-4, 1e-4, 1e-5])
     wrong = np.array([-2.0, -1.0, 0.7])
-    hypotheses = tuple(acquire.Hypothesis(motion.start(p, cov, 0.0, loc.config.motion), p.copy(), 0.0, cov[:2, :2], True)
-                       for p in (wrong, mirror(wrong)))
+    hypotheses = tuple(acquire.Hypothesis(motion.start(p, cov, 0.0, loc.config.motion), p.copy(), 0.0, cov[:2, :2],
+                                          True) for p in (wrong, mirror(wrong)))
     for use_marks in (True, False):
         state: object = acquire.Acquiring(None, hypotheses, 0, 0)
         for k, frame in enumerate(frames):

@@ -491,7 +491,8 @@ def test_the_acquisitions_hypotheses_move_with_the_odometry(robocon2025_twin) ->
     for i in range(61):  # 0.3 m straight ahead in 0.6 s
         fusion.offer(odometry(i * 0.01, 0.3 * i / 60, seq=i), i * 0.01)
     cov = np.diag([1e-4, 1e-4, 1e-5])
-    seen = acquire.Hypothesis(motion.start(seen_at, cov, 0.0, loc.config.motion), seen_at.copy(), 0.0, cov[:2, :2], True)
+    start = motion.start(seen_at, cov, 0.0, loc.config.motion)
+    seen = acquire.Hypothesis(start, seen_at.copy(), 0.0, cov[:2, :2], True)
     answer, after, _ = fused_track(predictor, fusion, hits, 640, 480, acquire.Acquiring(None, (seen,), 0, 0), 0.6)
     assert not answer.valid and isinstance(after, acquire.Acquiring)
     poses = [h.pose for h in after.hypotheses]
