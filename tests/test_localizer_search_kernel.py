@@ -6,6 +6,8 @@ across cells, never within one cell's sum) and round to float32 at every add, wh
 """
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 from localizer_kit import twin_setup
@@ -20,6 +22,13 @@ compiled = pytest.mark.skipif(not search.kernel_available(), reason="compiled se
 @pytest.fixture(scope="module")
 def setup():
     return twin_setup(POSES)
+
+
+def test_compiled_search_is_built_where_a_compiler_is() -> None:
+    # Without this the tests below would skip, not fail, where the C stopped compiling.
+    if shutil.which("cc") is None and shutil.which("gcc") is None:
+        pytest.skip("no C compiler on this machine: the numpy search is the one in use")
+    assert search.kernel_available(), "pip install -e . should have compiled localizer/search_kernel.c"
 
 
 @compiled
