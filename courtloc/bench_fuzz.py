@@ -38,7 +38,6 @@ from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, open_session
 from courtloc.common.limits import MAX_CHUNK_BYTES
 from courtloc.common.messages import Header, Health, Pose, ShotSolution
-from courtloc.common.signals import stop_on_signals
 from courtloc.common.services_table import (
     CONTROLS,
     SERVICES,
@@ -47,6 +46,7 @@ from courtloc.common.services_table import (
     all_liveliness_key,
     service_of_liveliness_key,
 )
+from courtloc.common.signals import stop_on_signals
 
 HOSTILE_SEQ = 1 << 40  # hostile messages that must never come out valid carry seq >= this
 UNCHECKED_SEQ = 1 << 39  # mutations that may still be legitimate messages (not counted either way)

@@ -178,3 +178,10 @@ def is_lost(state: MotionState, t: float | None, cfg: MotionConfig) -> bool:
     caller acquires again, the state's pose as a prior (acquire.py)."""
     return (state.lost >= cfg.max_lost_frames or elapsed(state, t, cfg) > cfg.max_gap_s
             or state.position_std_m > cfg.max_track_std_m)
+
+
+def pose_covariance(state: object) -> list[float]:
+    """Row-major 3x3 (x, y, yaw) covariance of a motion state, [] when there is none."""
+    if not isinstance(state, MotionState):
+        return []
+    return [float(v) for v in np.asarray(state.cov[:3, :3]).ravel()]

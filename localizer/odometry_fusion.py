@@ -42,7 +42,7 @@ at the frame's time). Vision fixes then correct it exactly as before (gate, fuse
 from __future__ import annotations
 
 import math
-from collections import Counter, deque
+from collections import Counter
 from dataclasses import dataclass, replace
 from itertools import pairwise
 from typing import Optional
@@ -52,6 +52,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from courtloc.common.messages import HOST, Odometry
 from courtloc.localizer import acquire, motion
+from courtloc.localizer.odometry_buffer import OdometryBuffer, OdometryDelta, OdometrySample
 from courtloc.world.angles import wrap_angle
 
 
@@ -98,92 +99,6 @@ class FusionConfig(BaseModel):
                              "valid fit elsewhere) fixes in a row before poses are valid again; blind frames between "
                              "are not")
     recover_fixes: int = Field(5, ge=1, description="fixes in a row that agree before poses are valid again")
-
-
-@dataclass(frozen=True)
-class OdometrySample:
-    t: float
-    epoch: int
-    pose: tuple[float, float, float]  # dead-reckoned in the epoch's frame
-    slip: bool
-    source_ns: int
-    seq: int
-    cut: tuple[float, float] = (0.0, 0.0)  # motion the slip limit has removed in this epoch so far (cumulative)
-
-
-@dataclass(frozen=True)
-class OdometryDelta:
-    """Motion between two times in the robot frame at the first: forward, left (m), turn (rad); the slip limit
-    removed (cut_dx, cut_dy) of the wheels' motion in between (in the same frame; it may have been real)."""
-
-    dx: float
-    dy: float
-    dyaw: float
-    slip: bool
-    cut_dx: float = 0.0
-    cut_dy: float = 0.0
-
-
-class OdometryBuffer:
-    """Recent odometry of one epoch at a time; answers the motion between two times."""
-
-    def __init__(self, keep_s: float) -> None:
-        self.keep_s = keep_s
-        self.samples: deque[OdometrySample] = deque()
-        # Nothing is dropped while the newest sample is older than this: a snapshot seeded after a restart
-        # (`OdometryFusion.resume`) stays until the pose saved with it can have been carried to the first frames.
-        self.hold_until = -math.inf
-
-    def add(self, sample: OdometrySample) -> None:
-        if self.samples and sample.epoch != self.samples[-1].epoch:
-            self.samples.clear()  # differences across epochs mean nothing
-        self.samples.append(sample)
-        if sample.t <= self.hold_until:
-            return
-        while self.samples and self.samples[0].t < sample.t - self.keep_s:
-            self.samples.popleft()
-
-    def clear(self) -> None:
-        self.samples.clear()
-
-    def pose_at(self, t: float, max_extrapolate_s: float) -> Optional[tuple[np.ndarray, bool, np.ndarray]]:
-        """The epoch's dead-reckoned pose at t (interpolated; extrapolated a little past the newest), whether
-        it slipped there, and the motion cut by the slip limit up to t (epoch frame)."""
-        s = self.samples
-        if len(s) < 2 or t < s[0].t:
-            return None
-        if t >= s[-1].t:
-            if t - s[-1].t > max_extrapolate_s:
-                return None
-            a, b = s[-2], s[-1]
-        else:
-            lo, hi = 0, len(s) - 1
-            while hi - lo > 1:
-                mid = (lo + hi) // 2
-                if s[mid].t <= t:
-                    lo = mid
-                else:
-                    hi = mid
-            a, b = s[lo], s[hi]
-        span = b.t - a.t
-        w = (t - a.t) / span if span > 0 else 1.0
-        pa, pb = np.array(a.pose), np.array(b.pose)
-        step = pb - pa
-        step[2] = wrap_angle(step[2])
-        ca, cb = np.array(a.cut), np.array(b.cut)
-        return pa + w * step, a.slip or b.slip, ca + min(w, 1.0) * (cb - ca)
-
-    def delta(self, t0: float, t1: float, max_extrapolate_s: float) -> Optional[OdometryDelta]:
-        p0 = self.pose_at(t0, max_extrapolate_s)
-        p1 = self.pose_at(t1, max_extrapolate_s)
-        if p0 is None or p1 is None:
-            return None
-        (a, slip0, cut0), (b, slip1, cut1) = p0, p1
-        c, s = math.cos(a[2]), math.sin(a[2])
-        d = b[:2] - a[:2]
-        k = cut1 - cut0
-        return OdometryDelta(dx=c * d[0] + s * d[1], dy=-s * d[0] + c * d[1], dyaw=wrap_angle(b[2] - a[2]),
-                             slip=slip0 or slip1, cut_dx=c * k[0] + s * k[1], cut_dy=-s * k[0] + c * k[1])
 
 
 @dataclass
@@ -599,69 +514,3 @@ class OdometryFusion:
         detail["fusion.gyro_bias_rad_s"] = round(float(self.bias.mean), 6)
         detail["fusion.wheel_scale"] = round(float(self.scale.mean), 5)
         return detail
-
-
-def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, width: int, height: int,  # noqa: ANN001
-                state, t: Optional[float], marks: Optional[np.ndarray] = None):  # noqa: ANN001, ANN201
-    """One tracked frame with odometry around it: (Prediction, next state, reason when odometry decided).
-
-    Without fusion it is exactly `predictor.track`."""
-    if fusion is None or not isinstance(state, (motion.MotionState, type(None))):
-        # Without fusion, or while the localizer acquires (its state is the evidence between hypotheses, not one
-        # track): `predictor.track`, with the acquisition's hypotheses and prior carried by odometry.
-        if fusion is not None and isinstance(state, acquire.Acquiring):
-            state = fusion.carry_hypotheses(state, t)
-            if state.prior is not None:
-                state = replace(state, prior=fusion.carry_prior(state.prior))
-        pred, after = predictor.track(hits, width, height, state, t=t, marks=marks)
-        if fusion is not None and pred.valid and isinstance(after, motion.MotionState):
-            fusion.note_acquired(after, t, len(hits))
-        return pred, after, ""
-    before = fusion.before_frame(state, t)
-    if fusion.search_pending and before is not None:
-        before = fusion.search_next(before, predictor.localizer.config.motion)
-        fusion.search_pending = False
-    pred, after = predictor.track(hits, width, height, before, t=t, marks=marks)
-    if isinstance(after, acquire.Acquiring) and pred.reason == "jump" and fusion.holds(before, t):
-        # A valid fit the odometry-carried track cannot explain: without odometry the two become hypotheses
-        # (GeometricLocalizer._after_jump), but here the track is what the wheels and gyro say, and a lone
-        # fit elsewhere is more likely a misread view (occluders, a parallel line) than a move. The track
-        # coasts on odometry and is in doubt (`doubt`: nothing valid until `doubt_fixes` fixes in a row); with
-        # lines in view the frame counts toward `disagree_frames`, whose run makes the kidnap suspicion (a search
-        # of the whole court), as any disagreement.
-        # Dropping the track instead lost it on the seed twin (`occluded`, fused): the continuation hypothesis,
-        # stepped at constant velocity, died in an occluded frame and the run stayed ambiguous for 20 s.
-        after = motion.coast(before, predictor.localizer.config.motion)
-        fusion.doubt = True
-    if not isinstance(after, (motion.MotionState, type(None))):  # the track was dropped: acquiring again
-        return pred, after, ""
-    # lost == 0 after the step: a fit was fused, or a valid one (re)started the track.
-    fused_by_vision = after is not None and after.lost == 0
-    in_view, contradicted, beyond_edge = len(hits), False, False
-    if after is not None and not fused_by_vision and fusion._predicted_t == t \
-            and len(hits) >= fusion.config.min_hits_to_contradict:
-        # Lines in view are the hits judged at the prediction; those on the court's outline and on no paint
-        # say nothing for or against it (`GeometricLocalizer.paint_evidence`). The hits are projected a second time
-        # (the tracker's projection stays inside it): only on frames without a fix.
-        evidence = predictor.localizer.paint_evidence(predictor.projected_hits(hits), after.mean[:3],
-                                                      after.cov[:3, :3], fusion.config.outline_may_show)
-        in_view = evidence.judged
-        contradicted = fusion.contradicts(evidence.on_paint, evidence.judged)
-        beyond_edge = evidence.edge_off_paint >= fusion.config.min_hits_to_contradict
-    fusion.note_vision(before, after, in_view, fused_by_vision, contradicted)
-    valid, reason = fusion.after_frame(pred.valid, fused_by_vision, after, t, in_view, contradicted, beyond_edge)
-    if after is not None and fusion._predicted_t == t and not pred.valid and not fusion.suspect:
-        # No usable fit: the answer is the odometry prediction (the filter's state), valid or not.
-        x, y, yaw = (float(v) for v in after.mean[:3])
-        pred = pred.model_copy(update={"x": x, "y": y, "yaw": yaw, "valid": valid, "mode": "odometry",
-                                       "position_std_m": after.position_std_m})
-    elif pred.valid and not valid:  # vision and odometry disagree: not valid until they agree again
-        pred = pred.model_copy(update={"valid": False, "quality": min(pred.quality, 0.49)})
-    return pred, after, reason
-
-
-def pose_covariance(state) -> list[float]:  # noqa: ANN001
-    """Row-major 3x3 (x, y, yaw) covariance of a motion state, [] when there is none."""
-    if not isinstance(state, motion.MotionState):
-        return []
-    return [float(v) for v in np.asarray(state.cov[:3, :3]).ravel()]

@@ -22,7 +22,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from courtloc.localizer import acquire, motion
-from courtloc.localizer.odometry_fusion import OdometryFusion, fused_track
+from courtloc.localizer.fused_track import fused_track
+from courtloc.localizer.odometry_fusion import OdometryFusion
 from courtloc.localizer.predictor import Prediction, Predictor
 
 

@@ -2,7 +2,7 @@
 
 `courtloc bench fusion --scenario blackout|normal`: the robot drives a loop at `--speed` (1.5 m/s);
 twin frames at 30 Hz go through the robot's preprocess and the localizer package's tracker, exactly
-as the infer stage runs them (`odometry_fusion.fused_track`); the twin's MCU (`sim/odometry.py`: wheel
+as the infer stage runs them (`fused_track.fused_track`); the twin's MCU (`sim/odometry.py`: wheel
 scale error, slip bursts, gyro bias, noise, clock offset and drift, latency) feeds the fusion the
 messages that have arrived by each frame's time. In `blackout` the frames carry no hits for
 `--blackout-s` (2 s) from `--blackout-at` (lens covered, a wall in view). Both runs (vision only /
@@ -27,7 +27,8 @@ import numpy as np
 from courtloc.cliargs import JSON_STDOUT, add_json_argument, json_output
 from courtloc.lab.eval import default_model_path
 from courtloc.localizer import acquire
-from courtloc.localizer.odometry_fusion import FusionConfig, OdometryFusion, fused_track
+from courtloc.localizer.fused_track import fused_track
+from courtloc.localizer.odometry_fusion import FusionConfig, OdometryFusion
 from courtloc.localizer.predictor import load_predictor
 from courtloc.sim.edges import scan_hits
 from courtloc.sim.odometry import OdometrySimConfig, OdometrySimulator

@@ -10,7 +10,9 @@ import pytest
 from courtloc.common.messages import Header, Odometry
 from courtloc.localizer import motion
 from courtloc.localizer.config import MotionConfig
-from courtloc.localizer.odometry_fusion import FusionConfig, OdometryBuffer, OdometryFusion, OdometrySample
+from courtloc.localizer.fused_track import fused_track
+from courtloc.localizer.odometry_buffer import OdometryBuffer, OdometrySample
+from courtloc.localizer.odometry_fusion import FusionConfig, OdometryFusion
 
 
 def odometry(t: float, x: float, y: float = 0.0, yaw: float = 0.0, epoch: int = 0, seq: int = 0,
@@ -265,7 +267,6 @@ def test_a_robot_moved_into_a_view_of_few_hits_is_not_valid_on_odometry(robocon2
     """The defect the robocon2025 twin's kidnap bench showed: the robot teleported 3.5 m into a view of fewer
     hits than `min_hits_in_view` was 'blind', so the frames were valid on odometry at the old place. The same
     16 hits seen from where the odometry says the robot is are fine (a fix); seen 3.5 m away they are not."""
-    from courtloc.localizer.odometry_fusion import fused_track
     from courtloc.sim.edges import scan_hits
 
     predictor, renderer = robocon2025_twin
@@ -294,7 +295,6 @@ def test_frames_of_few_hits_that_contradict_the_prediction_in_a_row_are_a_suspec
     of them in a row make the kidnap suspicion that searches the whole court, as frames with lines in view and
     no fix do (the robocon2025 twin's second kidnap ran 2.5 s of contradicted frames before a view of 40 hits
     made the suspicion)."""
-    from courtloc.localizer.odometry_fusion import fused_track
     from courtloc.sim.edges import scan_hits
 
     predictor, renderer = robocon2025_twin
@@ -318,7 +318,6 @@ def test_the_floors_own_edge_under_bright_light_is_no_evidence_against_odometry(
     blind frames after them stay valid on odometry. (Judged as paint evidence they made the twin's `fast`
     run invalid for ~2 s at a time, the odometry pose 1-2 cm from the truth; `outline_may_show = false` judges
     them so.)"""
-    from courtloc.localizer.odometry_fusion import fused_track
     from courtloc.sim.edges import scan_hits
     from courtloc.sim.render import RenderOptions
 
@@ -402,11 +401,9 @@ def test_a_lone_fit_elsewhere_keeps_the_odometry_track_and_only_a_run_of_them_is
     agreeing frames in a row make it valid again. The seed twin's `occluded` run lost its track that way and stayed
     ambiguous for 20 s. `disagree_frames` such frames in a row are a kidnap: the court is searched."""
     from courtloc.localizer import acquire
-    from courtloc.localizer.odometry_fusion import fused_track
     from courtloc.sim.edges import scan_hits
 
     predictor, renderer = robocon2025_twin
-    mcfg = predictor.localizer.config.motion
     tracked = np.array([3.0, 1.0, 0.0])
     moved = tracked + (0.0, 0.0, 0.3)  # turned 17 degrees: a view the tracked pose cannot explain
     seen_moved = scan_hits(renderer.render(tuple(moved)))
@@ -476,7 +473,6 @@ def test_the_acquisitions_hypotheses_move_with_the_odometry(robocon2025_twin) ->
     started from one fit and so without a velocity, stays where it was first seen, 0.3 m behind the robot."""
     from courtloc.localizer import acquire
     from courtloc.localizer.fit import fit_pose
-    from courtloc.localizer.odometry_fusion import fused_track
     from courtloc.localizer.symmetry import mirror
     from courtloc.sim.edges import scan_hits
 

@@ -18,14 +18,14 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from courtloc.localizer.acquire import Prior
-from courtloc.localizer.odometry_fusion import OdometrySample
+from courtloc.localizer.odometry_buffer import OdometrySample
 
 log = logging.getLogger(__name__)
 SAVE_PERIOD_NS = 500_000_000
 
 
 class SavedOdometry(BaseModel):
-    """One buffered odometry sample (localizer.odometry_fusion.OdometrySample)."""
+    """One buffered odometry sample (localizer.odometry_buffer.OdometrySample)."""
 
     model_config = ConfigDict(extra="forbid")
     t: float

@@ -15,9 +15,10 @@ from courtloc.common.messages import Edges, Odometry, Pose
 from courtloc.common.payloads import edges_hits, edges_marks
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Control, Topic
+from courtloc.localizer import motion
 from courtloc.localizer.acquire import Prior
 from courtloc.localizer.manifest import ManifestError, read_manifest
-from courtloc.localizer.odometry_fusion import OdometryFusion, pose_covariance
+from courtloc.localizer.odometry_fusion import OdometryFusion
 from courtloc.localizer.package import bundled_package
 from courtloc.localizer.predictor import GeometricPredictor
 from courtloc.localizer.tracking import Tracker, ages_agree
@@ -204,7 +205,7 @@ class InferService(Service):
                                 t=edges.header.capture_mono_ns * 1e-9, fusion=fusion,
                                 capture_wall_ns=edges.header.capture_wall_ns, marks=marks)
             fusion_reason = tracker.odometry_reason
-            covariance = pose_covariance(tracker.motion)
+            covariance = motion.pose_covariance(tracker.motion)
             x, y, yaw, quality = float(pred.x), float(pred.y), pred.yaw, float(pred.quality)
             finite = all(math.isfinite(v) for v in (x, y, *(() if yaw is None else (yaw,))))
             if not finite:
