@@ -25,10 +25,10 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    hypothesis when it lies within `decide_chi2` (3 sigma) with the heading counted at most
    `max_decide_yaw_std_deg` wide (never a right-angle turn from where the prior said), the prior's grown
    spread is at most `max_decide_std_m`, and every other one scores worse by at least `decide_log_ratio`
-   in log-likelihood (d^2 / 2). A half prior keeps the hypotheses in that half (|x| >= the centre margin). A lost
-   track's prior that explains none of the hypotheses for `kidnap_frames` frames means the robot was moved (a kidnap, or a track
-   that had snapped to a wrong parallel line): it is dropped, or with `kidnap_sigma_m` > 0 (default 0)
-   it becomes a kidnap prior, the same place that wide with the heading unknown (an assumption: a robot
+   in log-likelihood (d^2 / 2). A half prior keeps the hypotheses in that half (|x| >= the centre margin). A
+   lost track's prior that explains none of the hypotheses for `kidnap_frames` frames means the robot was moved (a
+   kidnap, or a track that had snapped to a wrong parallel line): it is dropped, or with `kidnap_sigma_m` > 0
+   (default 0) it becomes a kidnap prior, the same place that wide with the heading unknown (an assumption: a robot
    pushed or carried lands within a few metres; on the twin's robocon2025 kidnaps it decided wrong
    hypotheses, hence off by default). A start or pit prior stays.
    Without a prior, only a lone hypothesis is decided (never on a symmetric court). On a court with colour
@@ -39,7 +39,7 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    both undecided, and usually the wrong one dies of the cost tie. On a court with colour marks, a frame whose
    marks a pinned hypothesis puts on their own colour removes the unpinned ones whose free line puts them there
    nowhere within the robot's area, or only near a pinned one of the same heading on that line
-   (`GeometricLocalizer._placed_by_marks`).
+   (`hypotheses.placed_by_marks`).
 3. Confirmation. The decided hypothesis must be the one answer for `confirm_frames` frames in a row
    with a valid fit (`confirm_frames_tight` when a pose prior known to `tight_prior_m` decided: a wrong
    basin that close to a known pose is what tracking risks anyway); each of those frames searches the
@@ -266,7 +266,7 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
     hypothesis where and when it was first seen (its origin): a hypothesis tracked since carries that
     evidence, so waiting does not wash it out; a half is judged at the current pose (the robot may leave
     the centre). Sound because every hypothesis's mirror twin is kept beside it with the mirrored origin
-    (GeometricLocalizer._with_twins): without that, a lone survivor near the prior would be decided while
+    (hypotheses.with_twins): without that, a lone survivor near the prior would be decided while
     its twin, equally near, was missing. `half`: the package's fixed half ('half' symmetry mode), applied
     on top of the prior. `t` is the decision's time (the tight flag's age). `court_marks`: the court has
     colour marks; a hypothesis they contradict is never the robot, and without a prior a lone hypothesis
@@ -275,7 +275,8 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
     `confirm_frames_marks` frames."""
     poses = [h.pose for h in hypotheses]
     # One fitting clearly worse than the best this frame (`frames_behind`) is not a candidate until it fits again.
-    keep = [i for i in range(len(poses)) if hypotheses[i].behind == 0 and colour_verdict(hypotheses[i], cfg) != "against"]
+    keep = [i for i in range(len(poses))
+            if hypotheses[i].behind == 0 and colour_verdict(hypotheses[i], cfg) != "against"]
     if half is not None:
         keep = [i for i in keep if in_half(poses[i], half, centre_margin_m)]
     explained = True

@@ -12,8 +12,8 @@ edge at the same ranges they did not (docs/localizer.md, "Thin-band bias").
 
 The fit therefore expects a hit on a band of width w steps (measured along the edge normal) to lie
 `offset(w)` steps past the far edge, `offset` a piecewise-linear curve through calibrated knots
-(FitConfig.band_bias_widths / band_bias_samples). `courtloc.lab.band_bias_calibration` measures it from labelled frames: the
-median residual in steps per band-width bin, at the true poses. Both code paths apply it: `offset_m`
+(FitConfig.band_bias_widths / band_bias_samples). `courtloc.lab.band_bias_calibration` measures it from labelled
+frames: the median residual in steps per band-width bin, at the true poses. Both code paths apply it: `offset_m`
 here for the numpy fit, `band_offset` in fit_kernel.c (tested equal).
 """
 from __future__ import annotations

@@ -13,7 +13,7 @@ number of robots.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Callable, NamedTuple, Union
 
 import numpy as np
@@ -22,8 +22,10 @@ from courtloc.localizer import acquire, motion
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.fit import FitResult, fit_pose, fit_poses, quality_score
+from courtloc.localizer.hypotheses import merge_converged, placed_by_marks, with_twins
 from courtloc.localizer.marks import MarkMap, MarkPoints
 from courtloc.localizer.projection import HitGeometry, ProjectedHits
+from courtloc.localizer.result import LocalizeResult
 from courtloc.localizer.search import CoarseSearch
 from courtloc.localizer.symmetry import by_half, by_previous, mirror
 from courtloc.world.camera import CameraModel
@@ -32,37 +34,6 @@ from courtloc.world.court import Court
 # Restarts around the previous pose when the plain tracking fit fails: (dx m, dy m, dyaw rad).
 _TRACK_RESTARTS = [(0.0, 0.0, 0.07), (0.0, 0.0, -0.07), (0.25, 0.0, 0.0), (-0.25, 0.0, 0.0), (0.0, 0.25, 0.0),
                    (0.0, -0.25, 0.0)]
-# Colour marks placing an unpinned hypothesis along its free line (`_placed_by_marks`): how far along it to look
-# (the courts' half-length and more), in steps finer than a strip's width, and how close to a pinned pose every
-# place they fit must be for the two to be one (a strip is about a metre wide: shifts within it still fit).
-MARKS_LINE_REACH_M = 8.0
-MARKS_LINE_STEP_M = 0.1
-MARKS_PLACE_M = 1.0
-
-
-@dataclass(frozen=True)
-class LocalizeResult:
-    pose: np.ndarray  # (3,) x, y metres, yaw rad
-    fit: FitResult
-    mode: str  # "track" or "global"
-    alternatives: list[np.ndarray] = field(default_factory=list)  # the mirror twin in "both" mode; the other
-    # hypotheses while acquiring
-    status: str = ""  # why an answer is invalid beyond its fit: "ambiguous", "searching", "confirming", "jump"
-
-    @property
-    def valid(self) -> bool:
-        return self.fit.valid
-
-    @property
-    def quality(self) -> float:
-        return self.fit.quality
-
-    @property
-    def trackable(self) -> bool:
-        """Good enough to start the next frame from, even if not valid: a degenerate frame (only parallel
-        lines) still pins yaw and one direction. With the motion filter (`track`) such a frame is fused:
-        its covariance leaves the free direction to the prediction."""
-        return self.fit.valid or (self.mode == "track" and self.fit.n_inliers >= 12 and self.fit.inlier_ratio >= 0.5)
 
 
 # What a tracker passes from frame to frame: a track, an acquisition (with its prior), or None (no prior).
@@ -363,7 +334,7 @@ class GeometricLocalizer:
             found, searched, unpinned_cost = self._search_hypotheses(hits, t)
             live += found
             since = 0
-        live = self._merge(self._with_twins(live))
+        live = merge_converged(with_twins(live) if self.symmetric else live, acfg)
         behind = acquire.frames_behind([h for _, h in live], [res.fit.cost for res, _ in live], acfg)
         live = [(res, replace(h, behind=b)) for (res, h), b in zip(live, behind) if b < acfg.tie_drop_frames]
         kept = acquire.within_cap([h for _, h in live], acfg)
@@ -380,7 +351,7 @@ class GeometricLocalizer:
                 # later (the robocon2025 twin's first kidnap, replayed: the truth, showing 66 marks, was found
                 # only by the search 15 frames after the first, 0.5 s of usable views later).
                 since = max(since, acfg.research_frames)
-            live = self._placed_by_marks(live, points, seen)
+            live = placed_by_marks(live, points, seen, acfg, self.mark_map, self.court.area_half_extent_m)
         hypotheses = tuple(h for _, h in live)
         if not live:
             fit = searched or fit_pose(self.field, hits, np.zeros(3), cfg.fit, cfg.quality)
@@ -473,88 +444,6 @@ class GeometricLocalizer:
                   acquire.Hypothesis(motion.start(f.pose, f.covariance, t, mcfg), f.pose.copy(), t, _position_cov(f),
                                      f.valid)) for f in fits]
         return found, lowest, None if ok[0].valid else ok[0].cost
-
-    def _placed_by_marks(self, live: list[tuple[LocalizeResult, acquire.Hypothesis]], points: MarkPoints,
-                         seen: list[tuple[int, int]]) -> list[tuple[LocalizeResult, acquire.Hypothesis]]:
-        """Without the unpinned hypotheses the frame's colour marks place nowhere else than a pinned one.
-
-        An unpinned hypothesis stands for every pose along its free line, and keeps the others from being decided
-        (acquire.py). When a pinned hypothesis puts the frame's marks on their own colour (so they are the court's,
-        not an occluder's), the marks are looked for along the unpinned one's line, heading kept: where they lie
-        on their own colour nowhere along it, it is not the robot; where they do only within `MARKS_PLACE_M` of a
-        pinned hypothesis of its heading on its line, it is that one. Where they fit elsewhere along the line (a
-        line along a strip), it stays. The truth's own line passes through the truth, where its marks fit.
-        `seen`: each hypothesis's (own, other) marks this frame."""
-        acfg = self.config.acquire
-        if len(points) < acfg.marks_min:
-            return live
-        explaining = [h for (_, h), (own, other) in zip(live, seen)
-                      if h.pinned and own >= acfg.marks_min and own >= acfg.marks_ratio * other]
-        if not explaining:
-            return live
-        offsets = np.arange(-MARKS_LINE_REACH_M, MARKS_LINE_REACH_M + 1e-9, MARKS_LINE_STEP_M)
-        return [(res, h) for res, h in live if h.pinned or not self._marks_rule_out(h, explaining, offsets, points)]
-
-    def _marks_rule_out(self, unpinned: acquire.Hypothesis, pinned: list[acquire.Hypothesis], offsets: np.ndarray,
-                        points: MarkPoints) -> bool:
-        acfg = self.config.acquire
-        _, eigvec = np.linalg.eigh(unpinned.state.cov[:2, :2])
-        along, across = eigvec[:, -1], eigvec[:, 0]
-        # Only places the robot can be: a line facing away from a strip meets its colour far off the court.
-        hx, hy = self.court.area_half_extent_m
-        inside = offsets[(np.abs(unpinned.pose[0] + offsets * along[0]) <= hx)
-                         & (np.abs(unpinned.pose[1] + offsets * along[1]) <= hy)]
-        own, other = self.mark_map.evidence_along(unpinned.pose, along, inside, points)
-        fits = inside[(own >= acfg.marks_min) & (own >= acfg.marks_ratio * other)]
-        if not len(fits):
-            return True
-        for p in pinned:
-            delta = p.pose[:2] - unpinned.pose[:2]
-            at = float(delta @ along)
-            if (abs(math.remainder(float(unpinned.pose[2] - p.pose[2]), 2 * math.pi)) <= acfg.merge_rad
-                    and abs(float(delta @ across)) <= acfg.merge_m and np.all(np.abs(fits - at) <= MARKS_PLACE_M)):
-                return True
-        return False
-
-    def _with_twins(self, live: list[tuple[LocalizeResult, acquire.Hypothesis]]) -> list[tuple[LocalizeResult, acquire.Hypothesis]]:
-        """Each hypothesis and, on a point-symmetric court, its mirror twin (`_merge` drops duplicates)."""
-        if not self.symmetric:
-            return live
-        twins = []
-        for res, h in live:
-            pose = mirror(res.pose)
-            twins.append((LocalizeResult(pose=pose, fit=FitResult(**{**res.fit.__dict__, "pose": mirror(res.fit.pose)}),
-                                         mode=res.mode, status=res.status),
-                          acquire.Hypothesis(motion.mirrored(h.state), mirror(h.origin), h.origin_t,
-                                             None if h.origin_cov is None else h.origin_cov.copy(), h.pinned,
-                                             None if h.pinned_sighting is None else h.pinned_sighting.mirrored(mirror),
-                                             frames=h.frames, behind=h.behind)))
-        return live + twins
-
-    def _merge(self, live: list[tuple[LocalizeResult, acquire.Hypothesis]]) -> list[tuple[LocalizeResult, acquire.Hypothesis]]:
-        """Hypotheses that converged on one pose are one (the better-fitting one stays)."""
-        acfg = self.config.acquire
-        out: list[tuple[LocalizeResult, acquire.Hypothesis]] = []
-        for res, h in sorted(live, key=lambda rh: (rh[1].state.lost, rh[0].fit.cost)):
-            for k, (kept_res, kept) in enumerate(out):
-                if acquire.same_pose(h.pose, kept.pose, acfg):
-                    # Both saw the same frames' marks (a twin remade from its mirror has seen none yet).
-                    kept = replace(kept, marks=tuple(max(a, b) for a, b in zip(kept.marks, h.marks)),
-                                   frames=max(kept.frames, h.frames))
-                    out[k] = (kept_res, kept)
-                    if h.origin_t is not None and kept.origin_t is not None and h.origin_t < kept.origin_t:
-                        # One pose tracked since the earlier sighting: that sighting is its evidence, and so
-                        # is the earliest pinned one of either when that sighting was not pinned.
-                        pinned = [p for p in (h.earliest_pinned(), kept.earliest_pinned()) if p is not None]
-                        earliest = min(pinned, key=lambda p: -math.inf if p.t is None else p.t, default=None)
-                        out[k] = (kept_res, replace(
-                            kept, origin=h.origin, origin_t=h.origin_t, origin_cov=h.origin_cov,
-                            pinned=kept.pinned or h.pinned,
-                            pinned_sighting=None if h.pinned and h.pinned_sighting is None else earliest))
-                    break
-            else:
-                out.append((res, h))
-        return out
 
     def _nearest(self, hypotheses: list[acquire.Hypothesis], prior: acquire.Prior | None, t: float | None) -> int:
         """The hypothesis an undecided frame answers (invalid): nearest a pose prior, else the best fit."""

@@ -113,7 +113,8 @@ class GoldenSpec(_Strict):
     file: str = Field(default="golden.npz", pattern=PLAIN_NAME_PATTERN)
     sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
     n_frames: int = Field(ge=1)
-    max_position_error_m: float = Field(gt=0, description="stated accuracy: the largest position error on a golden frame")
+    max_position_error_m: float = Field(gt=0, description="stated accuracy: the largest position error on a golden "
+                                        "frame")
     max_yaw_error_deg: Optional[float] = Field(default=None, gt=0, description="the same for yaw; None: no yaw output")
 
 

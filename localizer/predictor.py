@@ -26,12 +26,13 @@ from pydantic import BaseModel, Field
 
 from courtloc.localizer.config import LocalizerConfig
 from courtloc.localizer.fit import kernel_active
-from courtloc.localizer.geometric import GeometricLocalizer, LocalizeResult
+from courtloc.localizer.geometric import GeometricLocalizer
 from courtloc.localizer.manifest import MODEL_FILE, PAPER_KINDS, Manifest, ManifestError
 from courtloc.localizer.marks import MarkPoints, mark_points
 from courtloc.localizer.model_file import ModelFile
 from courtloc.localizer.package import load_package
 from courtloc.localizer.paper_input import dense_input, hits_to_dense_input, hits_to_sparse_input, sparse_input
+from courtloc.localizer.result import LocalizeResult
 from courtloc.world.court import Court, load_court
 
 log = logging.getLogger(__name__)

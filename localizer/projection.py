@@ -180,8 +180,8 @@ class HitGeometry:
                                     hits[:, 0], hits[:, 1])
         packed = np.empty((len(hits), PACKED_COLUMNS))
         mount = self.camera.mount
-        n = _fit_kernel.hit_geometry(table, self.step_table, self.camera.height, self.camera.width, hits, mount.x, mount.y,
-                                     mount.height, float(self.origin_floor[0]), float(self.origin_floor[1]),
+        n = _fit_kernel.hit_geometry(table, self.step_table, self.camera.height, self.camera.width, hits, mount.x,
+                                     mount.y, mount.height, float(self.origin_floor[0]), float(self.origin_floor[1]),
                                      self._k_along, self._k_across, packed)
         return ProjectedHits(packed[:n], self._camera_xy, mount.height)
 

@@ -9,6 +9,7 @@ import pytest
 
 from courtloc.common.messages import Edges, Header
 from courtloc.common.payloads import edges_marks, marks_to_bytes
+from courtloc.localizer.hypotheses import placed_by_marks
 from courtloc.localizer.marks import mark_points
 from courtloc.localizer.predictor import load_predictor
 from courtloc.localizer.symmetry import mirror
@@ -192,6 +193,9 @@ def test_colour_marks_place_an_unpinned_hypothesis_along_its_line(robocon) -> No
     live = [hypothesis(truth, None), hypothesis(twin_side, (0.0, 1.0)), hypothesis(on_truths_line, (0.0, 1.0)),
             hypothesis(along_strip, (1.0, 0.0))]
     seen = [loc.mark_map.evidence(h.pose, points) for _, h in live]
-    kept = [h.pose for _, h in loc._placed_by_marks(live, points, seen)]
+    def placed(live: list, seen: list) -> list:
+        return placed_by_marks(live, points, seen, loc.config.acquire, loc.mark_map, loc.court.area_half_extent_m)
+
+    kept = [h.pose for _, h in placed(live, seen)]
     assert len(kept) == 2 and np.allclose(kept[0], truth) and np.allclose(kept[1], along_strip), kept
-    assert len(loc._placed_by_marks(live[1:], points, seen[1:])) == 3
+    assert len(placed(live[1:], seen[1:])) == 3
