@@ -13,6 +13,7 @@ not permit is refused with one line saying why, and the stage does not start hal
 from __future__ import annotations
 
 import os
+from typing import Callable
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
@@ -45,8 +46,33 @@ class RealtimeConfig(BaseModel):
         return stages
 
 
+def _threads(pid: int) -> list[int]:
+    """The thread ids of process `pid` (0: this one), its main thread first. Affinity and policy are per thread:
+    threads started before the settings (numpy's BLAS pool, at import) keep the old ones unless set too; threads
+    started after inherit them."""
+    main = pid or os.getpid()
+    try:
+        others = sorted(int(task) for task in os.listdir(f"/proc/{main}/task") if int(task) != main)
+    except OSError:  # no /proc: the main thread alone
+        others = []
+    return [main, *others]
+
+
+def _each_thread(pid: int, setting: Callable[[int], None]) -> None:
+    """`setting` on every thread of `pid`; the main thread's refusal is the process's, a thread that ended
+    meanwhile is no error."""
+    main, *others = _threads(pid)
+    setting(main)
+    for tid in others:
+        try:
+            setting(tid)
+        except ProcessLookupError:
+            pass
+
+
 def apply_realtime(stage: str, config: RealtimeConfig, pid: int = 0) -> list[str]:
-    """Apply `stage`'s settings to process `pid` (0: this one); returns what was applied, for the log."""
+    """Apply `stage`'s settings to every thread of process `pid` (0: this one); returns what was applied, for
+    the log."""
     settings = config.stages.get(stage)
     if not config.enabled or settings is None:
         return []
@@ -59,13 +85,14 @@ def apply_realtime(stage: str, config: RealtimeConfig, pid: int = 0) -> list[str
         if missing:
             raise RealtimeError(f"realtime.stages.{stage}.cpus: CPU(s) {missing} not available here "
                                 f"(allowed: {sorted(present)})")
-        os.sched_setaffinity(pid, settings.cpus)
+        _each_thread(pid, lambda tid: os.sched_setaffinity(tid, settings.cpus))
         applied.append(f"cpus {settings.cpus}")
     if settings.fifo_priority is not None:
         if not hasattr(os, "sched_setscheduler"):
             raise RealtimeError(f"realtime.stages.{stage}.fifo_priority: SCHED_FIFO is not available on this OS")
         try:
-            os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(settings.fifo_priority))
+            _each_thread(pid, lambda tid: os.sched_setscheduler(tid, os.SCHED_FIFO,
+                                                                os.sched_param(settings.fifo_priority)))
         except PermissionError:
             raise RealtimeError(
                 f"realtime.stages.{stage}.fifo_priority: the OS refused SCHED_FIFO for this user (needs "

@@ -18,6 +18,7 @@ import numpy as np
 
 from courtloc.bench_procstats import ProcessSampler
 from courtloc.cliargs import add_json_argument, json_to_stdout, positive_float
+from courtloc.common.realtime import RealtimeConfig
 from courtloc.common.services_table import RELAY_HOPS
 from courtloc.launcher import run_up
 from courtloc.services.deployment import load_deployment
@@ -73,11 +74,13 @@ def run(args: argparse.Namespace) -> int:
         "processes": processes["processes"],
         "robot_side_pss_mb": round(sum(processes["processes"][r]["pss_mb"] for r in robot_side), 1),
         "robot_side_processes": robot_side,
+        # Stages pinned or under SCHED_FIFO ([realtime], docs/deployment.md) run differently: say so in the report.
+        "realtime": config.realtime.model_dump() if config.realtime.enabled else None,
     }
     if processes["note"]:
         report["processes_note"] = processes["note"]
     if args.relay:
-        relay = measure_relay(args.seconds, fps=fps)
+        relay = measure_relay(args.seconds, fps=fps, realtime=config.realtime)
         report["relay_baseline"] = relay
         if relay["e2e_latency_ms_p50"] and report["e2e_latency_ms_p50"]:
             report["chain_over_relay_p50"] = report["e2e_latency_ms_p50"] / relay["e2e_latency_ms_p50"]
@@ -89,9 +92,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def measure_relay(seconds: float, warmup_frames: int = 30, mode: str = "stage",
-                  fps: float = 30.0) -> dict[str, float | int | None]:
-    """Router + the relay hops as processes (see courtloc/bench_relay.py); latency at the last hop."""
+def measure_relay(seconds: float, warmup_frames: int = 30, mode: str = "stage", fps: float = 30.0,
+                  realtime: RealtimeConfig | None = None) -> dict[str, float | int | None]:
+    """Router + the relay hops as processes (see courtloc/bench_relay.py); latency at the last hop. `realtime`:
+    each hop runs with its stage's settings, as in the chain."""
 
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
@@ -105,7 +109,8 @@ def measure_relay(seconds: float, warmup_frames: int = 30, mode: str = "stage",
         for hop in reversed(range(RELAY_HOPS)):  # consumers first
             hops.append(subprocess.Popen(
                 [sys.executable, "-m", "courtloc.bench_relay", "--hop", str(hop), "--port", str(port),
-                 "--seconds", str(seconds), "--mode", mode, "--fps", str(fps)],
+                 "--seconds", str(seconds), "--mode", mode, "--fps", str(fps),
+                 "--realtime", (realtime or RealtimeConfig()).model_dump_json()],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True))
         for proc in hops:
             proc.stdout.readline()  # "ready": connected

@@ -5,7 +5,9 @@ header stamps) and moves the frame the way the chain does: the source writes it 
 pool like the camera, every hop copies the pixels out once like preprocess and writes them into its own
 pool to pass them on. So the difference to the real chain is the real work.
 Run as `python -m courtloc.bench_relay --hop I --port P --seconds S`; `courtloc bench pipeline --relay`
-starts a router and the hops and compares them with the real chain in the same run.
+starts a router and the hops and compares them with the real chain in the same run. With `--realtime JSON` (the
+deployment's `[realtime]`) hop I runs with the settings of the I-th stage (camera, preprocess, infer,
+shooter_bridge), as the chain's stages do, so the two stay comparable.
 """
 from __future__ import annotations
 
@@ -21,7 +23,8 @@ import zenoh
 from courtloc.common.bus import ZenohConfig, declare_publisher, open_session
 from courtloc.common.inbox import LatestInbox
 from courtloc.common.messages import Frame, Header
-from courtloc.common.services_table import RELAY_HOPS, RELAY_TOPICS
+from courtloc.common.realtime import RealtimeConfig, apply_realtime
+from courtloc.common.services_table import RELAY_HOPS, RELAY_TOPICS, SERVICES
 from courtloc.common.shm_frames import PixelStaging, ShmFramePublisher, decode_frame_payload
 
 ROBOT = "bench"
@@ -79,7 +82,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fps", type=float, default=30.0)
     parser.add_argument("--mode", choices=["stage", "client", "peer"], default="stage",
                         help="stage: the session a pipeline stage opens (ZenohConfig.stage_links)")
+    parser.add_argument("--realtime", type=RealtimeConfig.model_validate_json, default=RealtimeConfig(),
+                        help="the deployment's [realtime] as JSON: this hop takes its stage's settings")
     args = parser.parse_args(argv)
+    apply_realtime(list(SERVICES)[args.hop], args.realtime)  # before any zenoh thread exists: they inherit it
     config = ZenohConfig(connect=[f"tcp/127.0.0.1:{args.port}"])
     config = config.stage_links() if args.mode == "stage" else config.model_copy(update={"mode": args.mode})
     session = open_session(config, threading.Event())

@@ -37,6 +37,24 @@ def test_affinity_is_applied_to_the_stage_process() -> None:
         child.communicate(b"")
 
 
+def test_threads_started_before_the_settings_take_them_too() -> None:
+    """numpy's BLAS pool starts its threads at import, before a stage applies its settings: every thread of the
+    process is pinned, not only the main one."""
+    cpu = max(os.sched_getaffinity(0))
+    child = subprocess.Popen([sys.executable, "-c", "import sys, threading; threading.Thread(target=sys.stdin.read, "
+                              "daemon=True).start(); print('started', flush=True); sys.stdin.read()"],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    try:
+        assert child.stdout.readline() == b"started\n"
+        tasks = [int(task) for task in os.listdir(f"/proc/{child.pid}/task")]
+        assert len(tasks) >= 2
+        pinned = RealtimeConfig(enabled=True, stages={"infer": StageRealtime(cpus=[cpu])})
+        apply_realtime("infer", pinned, pid=child.pid)
+        assert all(os.sched_getaffinity(task) == {cpu} for task in tasks)
+    finally:
+        child.communicate(b"")
+
+
 def test_a_cpu_this_machine_lacks_is_refused_naming_the_field() -> None:
     absent = max(os.sched_getaffinity(0)) + 64
     config = RealtimeConfig(enabled=True, stages={"camera": StageRealtime(cpus=[absent])})
