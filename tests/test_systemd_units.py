@@ -54,6 +54,15 @@ def test_service_unit_policy(path: Path) -> None:
     assert unit["Install"]["WantedBy"] == "courtloc.target"
 
 
+def test_stages_may_take_the_realtime_priorities_robot_toml_suggests() -> None:
+    """robot.toml's [realtime] example asks for SCHED_FIFO 10; the unprivileged stage unit must permit it (else
+    the stage refuses to start), and stay below the kernel's threaded IRQ handlers (50)."""
+    limit = int(_unit(UNITS / "courtloc-stage@.service")["Service"]["LimitRTPRIO"])
+    example = Path(__file__).resolve().parents[1] / "deploy" / "configs" / "robot.toml"
+    asked = [int(m) for m in re.findall(r"^# fifo_priority = (\d+)$", example.read_text(), re.M)]
+    assert asked and max(asked) <= limit < 50
+
+
 @pytest.mark.parametrize("path", SERVICE_FILES, ids=lambda p: p.name)
 def test_exec_start_is_a_real_courtloc_command(path: Path, tmp_path: Path) -> None:
     argv = shlex.split(_unit(path)["Service"]["ExecStart"])
