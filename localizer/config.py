@@ -137,8 +137,9 @@ class AcquireConfig(BaseModel):
                                     "degrees off was never explained by it and the track never came back)")
     decide_chi2: float = Field(9.0, gt=0, description="the hypothesis a pose prior decides for must lie within this "
                                "d^2 of it (3 sigma): farther, the truth may be a pose the search could not pin down")
-    kidnap_frames: int = Field(15, ge=1, description="frames a lost track's pose must explain no hypothesis before "
-                               "it is taken for a kidnap (the truth may just not be found yet in a degenerate view)")
+    kidnap_frames: int = Field(8, ge=1, description="frames a lost track's pose must explain no hypothesis before "
+                               "it is taken for a kidnap (the truth may just not be found yet in a degenerate view); "
+                               "a kidnap it is not dropped for may meanwhile show a view it explains elsewhere")
     kidnap_sigma_m: float = Field(0.0, ge=0, description="a lost track's pose that explains no hypothesis (the robot "
                                   "was moved) is kept as a prior this wide, heading unknown (0: dropped)")
     max_decide_std_m: float = Field(1.5, gt=0, description="a pose prior grown wider than this (its std plus "
