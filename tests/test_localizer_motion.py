@@ -295,16 +295,13 @@ def test_a_fused_degenerate_frame_is_valid_by_its_posterior(prior_std_m, valid) 
     assert abs(step.result.pose[1] - pose[1]) < 0.02, "y is pinned by the edge either way"
 
 
-def test_a_valid_fit_beyond_the_jump_limit_is_a_jump_not_a_frame_to_coast_through() -> None:
-    """Recorded seed-gazebo frames at 10 fps (tests/data/seed_fast_10fps_drift.json): the robot, at 2.5 m/s,
-    reverses at the area's edge; the track's prediction overshoots by 0.5 m and the next two frames' fits lie
-    at the truth, valid but beyond `track_max_jump_m`. Coasting through them, the track settled in a basin
-    1.5 m off whose fits were valid (then 4.4 m off). As a jump, the track and the fit are weighed by the
-    frames after: no valid pose is wrong, and the track is back, valid and right, within half a second."""
+def _replay_recording(name: str) -> tuple[list[float], list[bool], list[dict]]:
+    """A recorded slice of seed-gazebo frames (tests/data/NAME: the tracker's state before it, and each frame's hits,
+    colour marks and true pose) through the bundled localizer: each frame's position error, validity, and the frames."""
     from courtloc.localizer.package import bundled_package
     from courtloc.localizer.predictor import load_predictor
 
-    data = json.loads((Path(__file__).parent / "data" / "seed_fast_10fps_drift.json").read_text())
+    data = json.loads((Path(__file__).parent / "data" / name).read_text())
     s = data["state"]
     state = motion.MotionState(mean=np.array(s["mean"]), cov=np.array(s["cov"]), t=s["t"], lost=s["lost"],
                                weak=s["weak"])
@@ -316,9 +313,19 @@ def test_a_valid_fit_beyond_the_jump_limit_is_a_jump_not_a_frame_to_coast_throug
                                       t=frame["t"], marks=np.array(frame["marks"], np.int16).reshape(-1, 3))
         errors.append(math.hypot(pred.x - frame["truth"][0], pred.y - frame["truth"][1]))
         valid.append(pred.valid)
+    return errors, valid, data["frames"]
+
+
+def test_a_valid_fit_beyond_the_jump_limit_is_a_jump_not_a_frame_to_coast_through() -> None:
+    """Recorded seed-gazebo frames at 10 fps (tests/data/seed_fast_10fps_drift.json): the robot, at 2.5 m/s,
+    reverses at the area's edge; the track's prediction overshoots by 0.5 m and the next two frames' fits lie
+    at the truth, valid but beyond `track_max_jump_m`. Coasting through them, the track settled in a basin
+    1.5 m off whose fits were valid (then 4.4 m off). As a jump, the track and the fit are weighed by the
+    frames after: no valid pose is wrong, and the track is back, valid and right, within half a second."""
+    errors, valid, frames = _replay_recording("seed_fast_10fps_drift.json")
     assert not [e for e, v in zip(errors, valid) if v and e > 0.5]
     first_back = next(i for i, v in enumerate(valid) if i > 1 and v)
-    assert data["frames"][first_back]["t"] - data["frames"][0]["t"] <= 0.6
+    assert frames[first_back]["t"] - frames[0]["t"] <= 0.6
     assert all(valid[first_back:]), "lost again after the recovery"
 
 
@@ -330,21 +337,7 @@ def test_a_kidnapped_robots_view_explained_near_its_old_place_is_not_decided_the
     it: the lost track's prior explained that one and decided it, 27 valid poses 3.5-5.7 m off (with
     `kidnap_frames` 15). A prior that has explained nothing for `kidnap_frames` (8) frames is the kidnap's and is
     dropped first: on this point-symmetric court nothing else can decide, and no pose is valid and wrong."""
-    from courtloc.localizer.package import bundled_package
-    from courtloc.localizer.predictor import load_predictor
-
-    data = json.loads((Path(__file__).parent / "data" / "seed_kidnap_reflection.json").read_text())
-    s = data["state"]
-    state = motion.MotionState(mean=np.array(s["mean"]), cov=np.array(s["cov"]), t=s["t"], lost=s["lost"],
-                               weak=s["weak"])
-    predictor = load_predictor(bundled_package("seed-gazebo", "seed-gazebo"))
-    width, height = data["size"]
-    wrong = []
-    for frame in data["frames"]:
-        pred, state = predictor.track(np.array(frame["hits"], np.int16).reshape(-1, 4), width, height, state,
-                                      t=frame["t"], marks=np.array(frame["marks"], np.int16).reshape(-1, 3))
-        error = math.hypot(pred.x - frame["truth"][0], pred.y - frame["truth"][1])
-        if pred.valid and error > 0.5:
-            wrong.append((round(frame["t"] - data["frames"][0]["t"], 3), round(error, 2)))
+    errors, valid, frames = _replay_recording("seed_kidnap_reflection.json")
+    wrong = [(round(f["t"] - frames[0]["t"], 3), round(e, 2))
+             for f, e, v in zip(frames, errors, valid) if v and e > 0.5]
     assert not wrong, wrong
-
