@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--realtime", type=RealtimeConfig.model_validate_json, default=RealtimeConfig(),
                         help="the deployment's [realtime] as JSON: this hop takes its stage's settings")
     args = parser.parse_args(argv)
-    apply_realtime(list(SERVICES)[args.hop], args.realtime)  # before any zenoh thread exists: they inherit it
+    apply_realtime(list(SERVICES)[args.hop], args.realtime)  # before the session: zenoh's threads inherit it
     config = ZenohConfig(connect=[f"tcp/127.0.0.1:{args.port}"])
     config = config.stage_links() if args.mode == "stage" else config.model_copy(update={"mode": args.mode})
     session = open_session(config, threading.Event())

@@ -470,16 +470,15 @@ class GeometricLocalizer:
         pos_std, yaw_std = state.position_std_m, math.sqrt(max(float(state.cov[2, 2]), 0.0))
         valid = res.fit.valid or (res.trackable and pos_std <= q.max_position_std_m
                                   and yaw_std <= math.radians(q.max_yaw_std_deg))
-        fit = FitResult(**{**res.fit.__dict__, "valid": bool(valid), "position_std_m": pos_std, "yaw_std_rad": yaw_std,
-                           "quality": quality_score(res.fit.n_inliers, res.fit.inlier_ratio, pos_std, yaw_std,
-                                                    valid, q)})
+        fit = replace(res.fit, valid=bool(valid), position_std_m=pos_std, yaw_std_rad=yaw_std,
+                      quality=quality_score(res.fit.n_inliers, res.fit.inlier_ratio, pos_std, yaw_std, valid, q))
         return self._answer(LocalizeResult(pose=res.pose, fit=fit, mode=res.mode), state.pose)
 
     def _answer(self, res: LocalizeResult, pose: np.ndarray, invalid: bool = False) -> LocalizeResult:
         """`res` answering `pose` instead of its fit's pose (the fit stays, for its diagnostics)."""
         fit = res.fit
         if invalid:
-            fit = FitResult(**{**fit.__dict__, "valid": False, "quality": min(fit.quality, 0.49)})
+            fit = replace(fit, valid=False, quality=min(fit.quality, 0.49))
         alternatives = [mirror(pose)] if self.config.symmetry == "both" else []
         return LocalizeResult(pose=pose, fit=fit, mode=res.mode, alternatives=alternatives)
 
@@ -528,6 +527,6 @@ class GeometricLocalizer:
             pose = by_half(fit.pose, cfg.half, cfg.centre_margin_m)
         else:
             pose = by_previous(fit.pose, previous)
-        fit = FitResult(**{**fit.__dict__, "pose": pose})
+        fit = replace(fit, pose=pose)
         alternatives = [mirror(pose)] if cfg.symmetry == "both" else []
         return LocalizeResult(pose=pose, fit=fit, mode=mode, alternatives=alternatives)

@@ -9,7 +9,6 @@ import numpy as np
 
 from courtloc.localizer import acquire, motion
 from courtloc.localizer.config import AcquireConfig
-from courtloc.localizer.fit import FitResult
 from courtloc.localizer.marks import MarkMap, MarkPoints
 from courtloc.localizer.result import LocalizeResult
 from courtloc.localizer.symmetry import mirror
@@ -73,7 +72,7 @@ def with_twins(live: Live) -> Live:
     twins = []
     for res, h in live:
         pose = mirror(res.pose)
-        fit = FitResult(**{**res.fit.__dict__, "pose": mirror(res.fit.pose)})
+        fit = replace(res.fit, pose=mirror(res.fit.pose))
         twins.append((LocalizeResult(pose=pose, fit=fit, mode=res.mode, status=res.status),
                       acquire.Hypothesis(motion.mirrored(h.state), mirror(h.origin), h.origin_t,
                                          None if h.origin_cov is None else h.origin_cov.copy(), h.pinned,
