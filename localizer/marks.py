@@ -62,7 +62,7 @@ class MarkMap:
                        marks: MarkPoints) -> tuple[np.ndarray, np.ndarray]:
         """`evidence` at `pose` moved by each of `offsets` (m) along the unit `direction` (x, y), heading kept:
         (own, other) count arrays, one entry per offset."""
-        if len(marks) == 0:
+        if len(marks) == 0 or len(offsets) == 0:
             return np.zeros(len(offsets), np.int64), np.zeros(len(offsets), np.int64)
         cx, cy = self._on_court(pose, marks)
         cx = cx[None, :] + offsets[:, None] * float(direction[0])

@@ -199,3 +199,27 @@ def test_colour_marks_place_an_unpinned_hypothesis_along_its_line(robocon) -> No
     kept = [h.pose for _, h in placed(live, seen)]
     assert len(kept) == 2 and np.allclose(kept[0], truth) and np.allclose(kept[1], along_strip), kept
     assert len(placed(live[1:], seen[1:])) == 3
+
+
+def test_an_unpinned_hypothesis_whose_line_never_meets_the_area_is_not_the_robot(robocon) -> None:  # noqa: ANN001
+    """A hypothesis tracked off the court (x beyond the area's end) and free along y: no place on its line is one
+    the robot can stand on, so the marks rule it out, and the frame goes on (a twin run at 2.5 m/s raised here,
+    the infer stage's tracker with it, when no offset along the line was left to look at)."""
+    from courtloc.localizer import acquire, motion
+
+    predictor, preprocessor, renderer = robocon
+    loc = predictor.localizer
+    truth = np.array(FACING_RED[0])
+    frame = renderer.render(tuple(truth), RenderOptions(), np.random.default_rng(0))
+    points = mark_points(predictor.floor_table, predictor.width, preprocessor.marks(frame))
+    hx, _ = loc.court.area_half_extent_m
+    outside = np.array([hx + 1.0, 0.0, truth[2]])
+    cov = np.diag([1e-4, 4.0, 1e-5])
+    pinned = acquire.Hypothesis(motion.start(truth, np.diag([1e-4, 1e-4, 1e-5]), 0.0, loc.config.motion),
+                                truth.copy(), 0.0, np.diag([1e-4, 1e-4]), True)
+    unpinned = acquire.Hypothesis(motion.start(outside, cov, 0.0, loc.config.motion), outside.copy(), 0.0,
+                                  cov[:2, :2], False)
+    live = [(None, pinned), (None, unpinned)]
+    seen = [loc.mark_map.evidence(h.pose, points) for _, h in live]
+    kept = placed_by_marks(live, points, seen, loc.config.acquire, loc.mark_map, loc.court.area_half_extent_m)
+    assert len(kept) == 1 and np.allclose(kept[0][1].pose, truth)

@@ -81,7 +81,11 @@ class InferConfig(BaseModel):
     validation_memory_mb: float = Field(default=1024.0, gt=0,
                                         description="memory a candidate may take while it is validated")
     validation_timeout_s: float = Field(default=60.0, gt=0, description="a candidate validating longer is refused")
-    on_court_margin_m: float = Field(default=0.5, ge=0, description="a pose further off the court is not valid")
+    # Measured inwards: a robot's centre stays about half its width from the area's edge, and a pose nearer the
+    # edge than that is more often a wrong fit than a robot (the twin's fast walk, vision only: tracks snapped
+    # to the far end line there, metres from the truth).
+    on_court_margin_m: float = Field(default=0.5, ge=0, description="a pose nearer than this to the edge of the "
+                                     "robot's area (Court.area_half_extent_m), or beyond it, is not valid (off_court)")
     require_signature: bool = Field(default=False, description="refuse pushed models without a valid signature")
     signing_public_key: Path | None = None
     max_upload_mb: float = Field(default=2048.0, gt=0)
