@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 from types import ModuleType
 
-from courtloc import bench_fuzz, bench_pipeline, bench_soak, bench_twin
+from courtloc import bench_fuzz, bench_pipeline, bench_soak, bench_sweep, bench_twin
 from courtloc.lab import bench_infer, bench_localize, bench_preprocess, model_bench
 from courtloc.sim import bench_render, fusion_bench
 
@@ -22,6 +22,7 @@ BENCHES: dict[str, ModuleType] = {
     "infer": bench_infer,
     "fusion": fusion_bench,
     "twin": bench_twin,
+    "sweep": bench_sweep,
 }
 
 

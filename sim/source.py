@@ -97,7 +97,8 @@ class SimSource:
         if cfg.mcu is not None:
             self._mcu = TwinMcu(cfg.mcu, self._trajectory, cfg.kidnaps_s, seed=cfg.seed)
             self._mcu.start()
-        log.info("sim source: court %s, camera %s, %s trajectory at %.1f fps", court.name, camera.name, cfg.trajectory, cfg.fps)
+        log.info("sim source: court %s, camera %s, %s trajectory at %.1f fps", court.name, camera.name, cfg.trajectory,
+                 cfg.fps)
         return self
 
     def warm_up(self) -> None:
@@ -125,6 +126,13 @@ class SimSource:
         if self._renderer is None:
             raise RuntimeError("SimSource is not open")
         return self._renderer.camera
+
+    @property
+    def trajectory(self):
+        """The robot's path (with `kidnaps_s`, the teleports too): what a simulated wheel odometry follows."""
+        if self._trajectory is None:
+            raise RuntimeError("SimSource is not open")
+        return self._trajectory
 
     # ---- frames ---------------------------------------------------------------------------------
     def pose_at_index(self, index: int) -> Pose:

@@ -1,0 +1,207 @@
+"""Twin sweep: many walks and frame timings through the infer stage's tracker, in one process per walk.
+
+`courtloc bench sweep --court C --scenario S,... --seeds 1-8 --seconds 30 --json OUT`: each scenario's twin walk is
+rendered once per seed through the robot's own preprocess (hits and colour marks), then localised frame by frame
+through the infer stage's tracker (`Tracker.step`, with the stage's start prior and off-court rule) under the frame
+timings a chain gives it: every frame at the camera's rate (`all`), 5 % or 25 % of the frames lost at random with
+2-3 ms of capture jitter (`drop5`, `drop25`), every second or third frame (`half`, `third`). Vision only, and fused
+with the twin's wheel odometry and gyro (`sim/odometry.py`) where only driving moves the robot (not `kidnap`: the
+simulated wheels would feel the teleport). The infer-process kill of `outage` is not modelled here.
+
+`courtloc bench twin` runs one walk in real time through the real stages; this one runs tens of walks in minutes,
+which is where a rare valid-and-wrong pose shows. Per scenario and mode: runs, n, valid_fraction, valid_mean_err_m,
+valid_wrong (valid poses more than 0.5 m off), valid_wrong_runs, and each such run (seed, timing, first time, worst
+error). The same frames and timings give the same answers on any machine (no wall clock is read).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from courtloc.bench_twin import build_scenarios
+from courtloc.cli_errors import UsageError
+from courtloc.cliargs import JSON_STDOUT, add_json_argument, json_output, json_to_stdout, positive_float
+from courtloc.localizer.odometry_fusion import FusionConfig, OdometryFusion
+from courtloc.localizer.package import bundled_package
+from courtloc.localizer.predictor import load_predictor
+from courtloc.localizer.tracking import Tracker
+from courtloc.scan.config import PreprocessConfig
+from courtloc.scan.preprocessor import Preprocessor
+from courtloc.services.deployment import court_marks
+from courtloc.services.infer.config import InferConfig, StartConfig
+from courtloc.services.infer.service import start_prior
+from courtloc.services.infer.validation import is_on_court
+from courtloc.sim.odometry import OdometrySimConfig, OdometrySimulator
+from courtloc.sim.scenarios import Scenario
+from courtloc.sim.source import SimSource
+
+TIMINGS = ("all", "drop5", "drop25", "half", "third")
+WRONG_M = 0.5  # a valid pose farther than this from the truth is valid and wrong
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--court", default="seed-gazebo", help="court name (world/courts) or JSON path")
+    parser.add_argument("--camera", default=None, help="camera name or JSON path (default: the court's own)")
+    parser.add_argument("--scenario", default="clean,randomised,occluded,fast,kidnap,minus_x_start",
+                        help="comma-separated twin scenarios (those of `bench twin`)")
+    parser.add_argument("--seeds", default="1-8", help="walk seeds: 'A-B' or a comma-separated list")
+    parser.add_argument("--seconds", type=positive_float, default=30.0, help="sim seconds per walk")
+    parser.add_argument("--timings", default=",".join(TIMINGS), help=f"frame timings, of {', '.join(TIMINGS)}")
+    parser.add_argument("--mode", choices=("vision_only", "fused", "both"), default="both")
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="walks rendered and run at once")
+    add_json_argument(parser, "the report (default: printed to standard output)")
+
+
+def parse_seeds(text: str) -> list[int]:
+    try:
+        if "-" in text.strip("-"):
+            first, last = (int(v) for v in text.split("-", 1))
+            seeds = list(range(first, last + 1))
+        else:
+            seeds = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise UsageError(f"--seeds {text!r}: give 'A-B' or a comma-separated list of integers") from None
+    if not seeds:
+        raise UsageError(f"--seeds {text!r}: no seed given")
+    return seeds
+
+
+def frame_timing(n: int, fps: float, timing: str, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(indices of the frames that reach the infer stage, their capture times in seconds)."""
+    idx = np.arange(n)
+    keep = {"all": np.ones(n, bool), "drop5": rng.random(n) > 0.05, "drop25": rng.random(n) > 0.25,
+            "half": idx % 2 == 0, "third": idx % 3 == 0}[timing]
+    idx = idx[keep]
+    t = idx / fps
+    if timing.startswith("drop"):  # a loaded chain's capture stamps wander by a few ms
+        t = t + rng.normal(0.0, 0.002, len(idx)) + rng.exponential(0.001, len(idx))
+    return idx, t
+
+
+@dataclass
+class Walk:
+    """One rendered walk: each frame's hits, colour marks and true pose; odometry as it reaches the host."""
+
+    hits: list[np.ndarray]
+    marks: list[np.ndarray]
+    truth: np.ndarray  # (n, 3)
+    width: int
+    height: int
+    odometry: list | None  # sim.odometry Delivered, None where the wheels cannot follow the robot
+
+
+def render_walk(sc: Scenario, seconds: float) -> Walk:
+    pre = Preprocessor(PreprocessConfig(marks=court_marks(sc.sim.court)))
+    pre.warm_up()
+    hits, marks, truth = [], [], []
+    with SimSource(sc.sim) as source:
+        for _ in range(int(seconds * sc.sim.fps)):
+            frame, pose = source.read()
+            hits.append(pre.process(frame))
+            marks.append(pre.marks(frame))
+            truth.append(pose)
+        odometry = None if sc.sim.kidnaps_s else list(
+            OdometrySimulator(source.trajectory, OdometrySimConfig(), seed=sc.sim.seed).stream(seconds + 1.0))
+        width, height = source.camera.width, source.camera.height
+    return Walk(hits, marks, np.array(truth).reshape(-1, 3), width, height, odometry)
+
+
+def localise(walk: Walk, predictor, sc: Scenario, idx: np.ndarray, times: np.ndarray,  # noqa: ANN001
+             fused: bool) -> list[tuple[float, bool, float]]:
+    """(time, valid, position error) of each frame, as the infer stage answers it (off the court: not valid)."""
+    x, y, yaw = sc.start_pose
+    tracker = Tracker(start=start_prior(StartConfig(x=x, y=y, yaw_deg=math.degrees(yaw))))
+    margin = InferConfig.model_fields["on_court_margin_m"].default
+    fusion = OdometryFusion(FusionConfig(enabled=True)) if fused else None
+    delivered, rows = 0, []
+    for i, t in zip(idx, times):
+        # Odometry that reached the host by the time this frame is processed (one frame period later).
+        now = float(t) + 1.0 / sc.sim.fps
+        while fusion is not None and delivered < len(walk.odometry) and walk.odometry[delivered].at_s <= now:
+            fusion.offer(walk.odometry[delivered].message, now)
+            delivered += 1
+        p = tracker.step(predictor, walk.hits[i], walk.width, walk.height, t=float(t), fusion=fusion,
+                         marks=walk.marks[i])
+        valid = bool(p.valid) and all(map(math.isfinite, (p.x, p.y))) and is_on_court(predictor.court, p.x, p.y,
+                                                                                         margin)
+        rows.append((float(t), valid, math.hypot(p.x - walk.truth[i][0], p.y - walk.truth[i][1])))
+    return rows
+
+
+def run_walk(sc: Scenario, seconds: float, timings: list[str], modes: list[str],
+             camera: str | None) -> dict[str, list[dict[str, Any]]]:
+    """Every timing and mode of one walk: per mode, one summary per timing."""
+    walk = render_walk(sc, seconds)
+    court = sc.sim.court
+    predictor = load_predictor(bundled_package(court, camera or court))
+    out: dict[str, list[dict[str, Any]]] = {}
+    for mode in modes:
+        if mode == "fused" and walk.odometry is None:
+            continue
+        for k, timing in enumerate(timings):
+            rng = np.random.default_rng([sc.sim.seed, k])
+            idx, times = frame_timing(len(walk.hits), sc.sim.fps, timing, rng)
+            rows = localise(walk, predictor, sc, idx, times, mode == "fused")
+            out.setdefault(mode, []).append({"seed": sc.sim.seed, "timing": timing, **summarise(rows)})
+    return out
+
+
+def summarise(rows: list[tuple[float, bool, float]]) -> dict[str, Any]:
+    valid_err = [e for _, v, e in rows if v]
+    wrong = [(t, e) for t, v, e in rows if v and e > WRONG_M]
+    return {"n": len(rows), "valid": len(valid_err), "valid_err_sum_m": float(sum(valid_err)),
+            "valid_wrong": len(wrong), "first_wrong_s": wrong[0][0] if wrong else None,
+            "max_wrong_m": max(e for _, e in wrong) if wrong else None}
+
+
+def combine(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    n, valid = sum(r["n"] for r in runs), sum(r["valid"] for r in runs)
+    wrong_runs = [{k: r[k] for k in ("seed", "timing", "valid_wrong", "first_wrong_s", "max_wrong_m")}
+                  for r in runs if r["valid_wrong"]]
+    return {"runs": len(runs), "n": n, "valid_fraction": valid / n if n else None,
+            "valid_mean_err_m": sum(r["valid_err_sum_m"] for r in runs) / valid if valid else None,
+            "valid_wrong": sum(r["valid_wrong"] for r in runs), "valid_wrong_runs": wrong_runs}
+
+
+def run(args: argparse.Namespace) -> int:
+    names = [n.strip() for n in args.scenario.split(",") if n.strip()]
+    seeds = parse_seeds(args.seeds)
+    timings = [t.strip() for t in args.timings.split(",") if t.strip()]
+    unknown = [t for t in timings if t not in TIMINGS]
+    if unknown or not timings:
+        raise UsageError(f"--timings {args.timings!r}: known timings are {', '.join(TIMINGS)}")
+    if args.jobs < 1:
+        raise UsageError(f"--jobs {args.jobs}: at least 1")
+    modes = ["vision_only", "fused"] if args.mode == "both" else [args.mode]
+    walks = [sc for seed in seeds
+             for sc in build_scenarios(names, argparse.Namespace(**{**vars(args), "seed": seed}))]
+    with ProcessPoolExecutor(max_workers=min(args.jobs, len(walks))) as pool:
+        results = list(pool.map(run_walk, walks, [args.seconds] * len(walks), [timings] * len(walks),
+                                [modes] * len(walks), [args.camera] * len(walks)))
+    report: dict[str, Any] = {}
+    for sc, result in zip(walks, results):
+        for mode, runs in result.items():
+            report.setdefault(sc.name, {}).setdefault(mode, []).extend(runs)
+    report = {name: {mode: combine(runs) for mode, runs in by_mode.items()} for name, by_mode in report.items()}
+    # The table goes where the JSON does not: standard output with --json FILE, else standard error.
+    table = sys.stdout if args.json is not None and not json_to_stdout(args.json) else sys.stderr
+    for name, by_mode in report.items():
+        for mode, r in by_mode.items():
+            print(f"{name:14s} {mode:11s} runs {r['runs']:3d}  frames {r['n']:6d}  valid {r['valid_fraction']:.3f}"
+                  f"  valid mean {(r['valid_mean_err_m'] or math.nan) * 100:.1f} cm  valid_wrong {r['valid_wrong']}"
+                  f" in {len(r['valid_wrong_runs'])} runs", file=table)
+    report["run"] = {"court": args.court, "camera": args.camera, "seeds": seeds, "seconds": args.seconds,
+                     "timings": timings, "mode": args.mode, "wrong_m": WRONG_M,
+                     "command": " ".join(["courtloc", *sys.argv[1:]])}
+    if args.json is not None and not json_to_stdout(args.json):
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+    (args.json or json_output(JSON_STDOUT)).write_text(json.dumps(report, indent=1) + "\n")
+    return 0

@@ -1,0 +1,61 @@
+"""`courtloc bench sweep`: twin walks under a chain's frame timings through the infer stage's tracker, in process."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from cli_in_process import courtloc_in_process
+
+from courtloc.bench_sweep import combine, frame_timing, parse_seeds, summarise
+
+
+def test_frame_timings_are_what_a_chain_delivers() -> None:
+    n, fps = 3000, 30.0
+    idx, t = frame_timing(n, fps, "all", np.random.default_rng(0))
+    assert np.array_equal(idx, np.arange(n)) and np.allclose(t, idx / fps)
+    idx, t = frame_timing(n, fps, "half", np.random.default_rng(0))
+    assert np.array_equal(idx, np.arange(0, n, 2)) and np.allclose(t, idx / fps)
+    idx, t = frame_timing(n, fps, "third", np.random.default_rng(0))
+    assert np.array_equal(idx, np.arange(0, n, 3))
+    for timing, lost in (("drop5", 0.05), ("drop25", 0.25)):
+        idx, t = frame_timing(n, fps, timing, np.random.default_rng(0))
+        # Binomial: the frames lost lie within 5 standard deviations of the rate.
+        assert abs((n - len(idx)) - lost * n) <= 5 * np.sqrt(n * lost * (1 - lost))
+        late = t - idx / fps  # capture jitter of a few milliseconds, never a frame period
+        assert np.std(late) > 0.001 and np.max(np.abs(late)) < 0.5 / fps
+
+
+def test_a_valid_pose_half_a_metre_off_is_counted_with_its_run() -> None:
+    rows = [(0.0, False, 3.0), (0.1, True, 0.02), (0.2, True, 0.51), (0.3, True, 0.8), (0.4, True, 0.49)]
+    one = {"seed": 4, "timing": "drop5", **summarise(rows)}
+    other = {"seed": 5, "timing": "all", **summarise([(0.0, True, 0.01)])}
+    report = combine([one, other])
+    assert report["n"] == 6 and report["valid_wrong"] == 2
+    assert report["valid_fraction"] == pytest.approx(5 / 6)
+    assert report["valid_mean_err_m"] == pytest.approx((0.02 + 0.51 + 0.8 + 0.49 + 0.01) / 5)
+    assert report["valid_wrong_runs"] == [{"seed": 4, "timing": "drop5", "valid_wrong": 2, "first_wrong_s": 0.2,
+                                           "max_wrong_m": 0.8}]
+
+
+def test_seeds_are_a_range_or_a_list() -> None:
+    assert parse_seeds("3-6") == [3, 4, 5, 6]
+    assert parse_seeds("1,7") == [1, 7]
+
+
+def test_a_short_clean_walk_is_tracked_in_both_modes(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                     caplog: pytest.LogCaptureFixture) -> None:
+    """Two seconds of the clean walk at every frame and every second frame: the frames the timings keep, vision
+    only and fused, valid most of the time (the start pose is told) and never wrong."""
+    out = tmp_path / "sweep.json"
+    done = courtloc_in_process(["bench", "sweep", "--court", "seed-gazebo", "--scenario", "clean", "--seeds", "1",
+                                "--seconds", "2", "--timings", "all,half", "--jobs", "1", "--json", str(out)],
+                               capsys, caplog)
+    assert done.returncode == 0, done.stderr
+    report = json.loads(out.read_text())
+    assert set(report["clean"]) == {"vision_only", "fused"}
+    for mode in report["clean"].values():
+        assert mode["runs"] == 2 and mode["n"] == 60 + 30
+        assert mode["valid_fraction"] > 0.5 and mode["valid_wrong"] == 0
+    assert report["run"]["seeds"] == [1] and "clean " in done.stdout
