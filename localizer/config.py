@@ -96,10 +96,11 @@ class MotionConfig(BaseModel):
                                 "direction position std) answers its next valid fit invalid ('confirming'): "
                                 "validity comes back from two agreeing frames, not one")
     regain_weak_frames: int = Field(5, ge=0, description="... and so does a track the constant-velocity model "
-                                    "carried through this many frames in a row without a valid fit (0: never): "
-                                    "its std can stay under regain_std_m while it drifts along a degenerate view "
-                                    "(it bounds a one-frame drift; a view that fits the same wrong place two frames "
-                                    "running still answers valid)")
+                                    "carried through this many frames in a row without a fit valid on its own (0: "
+                                    "never): its std can stay under regain_std_m while it drifts along a degenerate "
+                                    "view. Such a track answers a view that pins only some directions invalid, and "
+                                    "only a fit valid on its own re-anchors it (a view that fits the same wrong place "
+                                    "two frames running still answers valid)")
 
 
 class AcquireConfig(BaseModel):

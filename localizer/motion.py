@@ -17,8 +17,10 @@ only ever holds past frames. The rules, explicit:
   wrong would otherwise never let go), answered invalid (`jump`): the next frame must agree with it; a
   trackable but invalid one that disagrees is ignored;
 - a state known worse than `regain_std_m` (after coasting or degenerate views), or carried by the
-  constant-velocity model through `regain_weak_frames` frames in a row without a valid fit, answers its
-  next valid fit invalid (`confirming`): one fit re-anchors it, two agreeing frames make it valid again;
+  constant-velocity model through `regain_weak_frames` frames in a row without a fit valid on its own,
+  answers its next such fit invalid (`confirming`): one fit re-anchors it, two agreeing frames make it
+  valid again; a trackable fit does not re-anchor it (along the lines it sees, the posterior is the
+  prediction that drifted) and answers invalid;
 - a frame without a usable fit answers the prediction (invalid) and counts as lost; after
   `max_lost_frames` lost frames in a row, a gap over `max_gap_s`, or once the state's position std
   passes `max_track_std_m`, the track is dropped and the caller acquires again with the lost state's
