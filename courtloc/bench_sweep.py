@@ -10,8 +10,9 @@ simulated wheels would feel the teleport). The infer-process kill of `outage` is
 
 `courtloc bench twin` runs one walk in real time through the real stages; this one runs tens of walks in minutes,
 which is where a rare valid-and-wrong pose shows. Per scenario and mode: runs, n, valid_fraction, valid_mean_err_m,
-valid_wrong (valid poses more than 0.5 m off), valid_wrong_runs, and each such run (seed, timing, first time, worst
-error). The same frames and timings give the same answers on any machine (no wall clock is read).
+valid_wrong (valid poses more than 0.5 m off), valid_wrong_runs (each such run: seed, timing, first time, worst
+error), and by_timing (n, valid_fraction and valid_wrong of each timing's runs). No clock is read: a run repeats
+exactly on one machine (another CPU's floating point may tip a near-tie).
 """
 from __future__ import annotations
 
@@ -166,9 +167,17 @@ def combine(runs: list[dict[str, Any]]) -> dict[str, Any]:
     n, valid = sum(r["n"] for r in runs), sum(r["valid"] for r in runs)
     wrong_runs = [{k: r[k] for k in ("seed", "timing", "valid_wrong", "first_wrong_s", "max_wrong_m")}
                   for r in runs if r["valid_wrong"]]
+    timings = dict.fromkeys(r["timing"] for r in runs)
+    by_timing = {}
+    for timing in timings:
+        of = [r for r in runs if r["timing"] == timing]
+        frames = sum(r["n"] for r in of)
+        by_timing[timing] = {"n": frames, "valid_fraction": sum(r["valid"] for r in of) / frames if frames else None,
+                             "valid_wrong": sum(r["valid_wrong"] for r in of)}
     return {"runs": len(runs), "n": n, "valid_fraction": valid / n if n else None,
             "valid_mean_err_m": sum(r["valid_err_sum_m"] for r in runs) / valid if valid else None,
-            "valid_wrong": sum(r["valid_wrong"] for r in runs), "valid_wrong_runs": wrong_runs}
+            "valid_wrong": sum(r["valid_wrong"] for r in runs), "valid_wrong_runs": wrong_runs,
+            "by_timing": by_timing}
 
 
 def run(args: argparse.Namespace) -> int:

@@ -37,6 +37,8 @@ def test_a_valid_pose_half_a_metre_off_is_counted_with_its_run() -> None:
     assert report["valid_mean_err_m"] == pytest.approx((0.02 + 0.51 + 0.8 + 0.49 + 0.01) / 5)
     assert report["valid_wrong_runs"] == [{"seed": 4, "timing": "drop5", "valid_wrong": 2, "first_wrong_s": 0.2,
                                            "max_wrong_m": 0.8}]
+    assert report["by_timing"] == {"drop5": {"n": 5, "valid_fraction": 0.8, "valid_wrong": 2},
+                                   "all": {"n": 1, "valid_fraction": 1.0, "valid_wrong": 0}}
 
 
 def test_seeds_are_a_range_or_a_list() -> None:
