@@ -66,6 +66,10 @@ def rounding_tolerances(field, hits, starts, cfg, quality, iterations, ref):  # 
     tolerances = []
     for s in range(n_starts):
         base = values(ref[s])
+        floor = dict(absolute)
+        if base["rms_m"] > 0:
+            # The cost is a mean of squared residuals over their scale: its relative rounding is twice the rms's.
+            floor["cost"] = 2.0 * float(base["cost"]) * absolute["rms_m"] / float(base["rms_m"])
         tol = {}
         for key, value in base.items():
             response = np.zeros_like(value)
@@ -77,7 +81,7 @@ def rounding_tolerances(field, hits, starts, cfg, quality, iterations, ref):  # 
             # Norm-wise: an entry's rounding scales with the whole vector or matrix it is computed with
             # (an off-diagonal covariance term is a difference of products of the large ones).
             scale = np.max(np.nan_to_num(np.abs(value), posinf=0.0))
-            tol[key] = steps * max(float(np.max(response)), n * eps * scale, absolute.get(key, 0.0))
+            tol[key] = steps * max(float(np.max(response)), n * eps * scale, floor.get(key, 0.0))
         tolerances.append(tol)
     return tolerances
 
