@@ -185,6 +185,12 @@ class LocalizerConfig(BaseModel):
     rival_min_anisotropy: float = Field(3.0, ge=1, description="... and its position std along its weakest direction "
                                         "is at least this many times the strongest's (a view pinned both ways has no "
                                         "line to slide along; the probes cost as much as the frame's own fit)")
+    tie_probe_m: list[float] = Field(
+        default_factory=lambda: [0.6], max_length=8,
+        description="a tracked fit valid on its own is also fitted from its pose moved this far either way along its "
+        "weakest direction ([]: never); a start that converges elsewhere (beyond acquire.merge_m) and explains the "
+        "view as well (within acquire's tie, with 80 % of the inliers) shows the view does not pin that direction, "
+        "whatever the fit's covariance says: the fit counts as trackable only, free towards the other place")
     regain_yaw_probes_rad: list[float] = Field(
         default_factory=lambda: [0.2, 0.35], max_length=8,
         description="a drifted track's re-anchoring fit (motion.regain_std_m, regain_weak_frames) is also fitted from "

@@ -36,6 +36,9 @@ _TRACK_RESTARTS = [(0.0, 0.0, 0.07), (0.0, 0.0, -0.07), (0.25, 0.0, 0.0), (-0.25
                    (0.0, -0.25, 0.0)]
 
 
+# A probe's basin ties with the tracked fit's only when it explains nearly as many of the hits (`_pinned_or_free`).
+_TIE_INLIERS = 0.8
+
 # What a tracker passes from frame to frame: a track, an acquisition (with its prior), or None (no prior).
 TrackState = Union[motion.MotionState, acquire.Acquiring, None]
 
@@ -257,7 +260,7 @@ class GeometricLocalizer:
         has its own rules for deciding."""
         mcfg = self.config.motion
         pred = motion.predict(state, t, mcfg)
-        res = self.localize(hits, pred.pose)
+        res = self._pinned_or_free(hits, self.localize(hits, pred.pose))
         r = motion.measurement_cov(res.fit.covariance, mcfg)
         if (res.valid or res.trackable) and r is not None:
             innov = motion.innovation(pred, res.pose, r)
@@ -308,6 +311,35 @@ class GeometricLocalizer:
             # for an acquisition's hypotheses (guard_regain False), whose evidence belongs to where they are.
             return self._jump(res, t)
         return TrackStep(self._answer(res, pred.pose, invalid=True), motion.coast(pred, mcfg))
+
+    def _pinned_or_free(self, hits: ProjectedHits, res: LocalizeResult) -> LocalizeResult:
+        """`res` when its fit, valid on its own, pins the pose; else the fit as trackable only, its covariance widened
+        towards the other place that explains the view as well (`tie_probe_m`). A fit's covariance is the curvature of
+        its own basin: in a view of lines along one way it can be that of a few hits near a line's end while a basin
+        0.5 m along the lines fits every hit as well (robocon2025 twin, fast walk seen at 15 fps: such fits, 2 cm std,
+        held the track at one place while the robot drove on at 2.4 m/s; fused as valid measurements they stopped its
+        velocity in three frames and answered 15 valid poses up to 1.9 m off). Free along that way, the fit leaves it
+        to the prediction (and to `regain_weak_frames`)."""
+        cfg, fit = self.config, res.fit
+        if not cfg.tie_probe_m or not fit.valid or fit.covariance is None:
+            return res
+        cov = np.asarray(fit.covariance, np.float64)
+        if not np.all(np.isfinite(cov)):
+            return res
+        _, axes = np.linalg.eigh(cov[:2, :2])
+        weakest = axes[:, -1]
+        starts = [fit.pose + (sign * d * weakest[0], sign * d * weakest[1], 0.0) for d in cfg.tie_probe_m
+                  for sign in (1, -1)]
+        limit = acquire.tie_limit(fit.cost, cfg.acquire)
+        for other in self._fit_starts(hits, np.array(starts)):
+            offset = np.array([other.pose[0] - fit.pose[0], other.pose[1] - fit.pose[1], 0.0])
+            apart = math.hypot(offset[0], offset[1])
+            if apart > cfg.acquire.merge_m and other.cost <= limit and other.n_inliers >= _TIE_INLIERS * fit.n_inliers:
+                free = replace(fit, valid=False, quality=min(fit.quality, 0.49),
+                               covariance=cov + np.outer(offset, offset), position_std_m=max(fit.position_std_m, apart))
+                return LocalizeResult(pose=res.pose, fit=free, mode=res.mode, alternatives=res.alternatives,
+                                      status=res.status)
+        return res
 
     def _jump(self, res: LocalizeResult, t: float | None) -> TrackStep:
         """A valid fit the track cannot follow: invalid this frame, the track restarted there (`track` turns it

@@ -296,9 +296,10 @@ def test_a_fused_degenerate_frame_is_valid_by_its_posterior(prior_std_m, valid) 
     assert abs(step.result.pose[1] - pose[1]) < 0.02, "y is pinned by the edge either way"
 
 
-def _replay_recording(name: str) -> tuple[list[float], list[bool], list[dict]]:
-    """A recorded slice of seed-gazebo frames (tests/data/NAME: the tracker's state before it, and each frame's hits,
-    colour marks and true pose) through the bundled localizer: each frame's position error, validity, and the frames."""
+def _replay_recording(name: str, update: dict | None = None) -> tuple[list[float], list[bool], list[dict]]:
+    """A recorded slice of twin frames (tests/data/NAME: its court, seed-gazebo unless named, the tracker's state
+    before it, and each frame's hits, colour marks and true pose) through the court's bundled localizer, its settings
+    changed by `update`: each frame's position error, validity, and the frames."""
     from courtloc.localizer.package import bundled_package
     from courtloc.localizer.predictor import load_predictor
 
@@ -306,7 +307,10 @@ def _replay_recording(name: str) -> tuple[list[float], list[bool], list[dict]]:
     s = data["state"]
     state = motion.MotionState(mean=np.array(s["mean"]), cov=np.array(s["cov"]), t=s["t"], lost=s["lost"],
                                weak=s["weak"])
-    predictor = load_predictor(bundled_package("seed-gazebo", "seed-gazebo"))
+    court = data.get("court", "seed-gazebo")
+    predictor = load_predictor(bundled_package(court, court))
+    if update:
+        predictor.localizer.config = predictor.localizer.config.model_copy(update=update)
     width, height = data["size"]
     errors, valid = [], []
     for frame in data["frames"]:
@@ -328,6 +332,22 @@ def test_views_that_pin_only_some_directions_answer_valid_for_a_few_frames_only(
     needed = MotionConfig().regain_weak_frames  # the bundled package keeps the default
     assert valid[:needed] == [True] * needed, "the first frames after a pinned fit stay valid"
     assert not any(valid[needed:])
+
+
+@pytest.mark.parametrize("probes", [[], None])
+def test_a_fit_whose_view_fits_as_well_along_its_lines_does_not_pin_the_track(probes: list | None) -> None:
+    """Recorded robocon2025 frames at 15 fps (tests/data/r25_fast_tie_basin.json): the robot drives on at 2.4 m/s
+    while each frame's fit from the track's prediction lands in one place, valid on its own with a 2 cm std and every
+    hit an inlier, and a start 0.6 m along the fit's weakest direction fits the view as well elsewhere. Fused as valid
+    measurements (no probes) they stop the track's velocity in three frames: valid poses up to 1.7 m off. With the
+    probes (the bundled setting) such a fit is trackable only, free towards the other place: no valid pose is wrong."""
+    errors, valid, _ = _replay_recording("r25_fast_tie_basin.json", None if probes is None else {"tie_probe_m": probes})
+    wrong = [e for e, v in zip(errors, valid) if v and e > 0.5]
+    if probes is None:
+        assert not wrong
+        assert valid[0], "the track starts right and valid"
+    else:
+        assert len(wrong) >= 5 and max(wrong) > 1.0, "without the probes the recorded frames answer valid and wrong"
 
 
 def test_a_valid_fit_beyond_the_jump_limit_is_a_jump_not_a_frame_to_coast_through() -> None:
