@@ -22,7 +22,7 @@ import math
 import os
 import sys
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -30,6 +30,7 @@ import numpy as np
 from courtloc.bench_twin import build_scenarios
 from courtloc.cli_errors import UsageError
 from courtloc.cliargs import JSON_STDOUT, add_json_argument, json_output, json_to_stdout, positive_float
+from courtloc.localizer.manifest import ManifestError
 from courtloc.localizer.odometry_fusion import FusionConfig, OdometryFusion
 from courtloc.localizer.package import bundled_package
 from courtloc.localizer.predictor import load_predictor
@@ -192,6 +193,13 @@ def run(args: argparse.Namespace) -> int:
     modes = ["vision_only", "fused"] if args.mode == "both" else [args.mode]
     walks = [sc for seed in seeds
              for sc in build_scenarios(names, argparse.Namespace(**{**vars(args), "seed": seed}))]
+    court = walks[0].sim.court
+    try:  # the package the infer stage would serve for this court and camera, before any walk is rendered
+        bundled_package(court, args.camera or court)
+    except ManifestError as exc:
+        raise UsageError(f"--camera {args.camera}: {exc}" if args.camera else str(exc)) from None
+    if args.camera is not None:  # the walks are seen through the team's camera, as `bench twin` renders them
+        walks = [replace(sc, sim=sc.sim.model_copy(update={"camera": args.camera})) for sc in walks]
     with ProcessPoolExecutor(max_workers=min(args.jobs, len(walks))) as pool:
         results = list(pool.map(run_walk, walks, [args.seconds] * len(walks), [timings] * len(walks),
                                 [modes] * len(walks), [args.camera] * len(walks)))

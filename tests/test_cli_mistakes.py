@@ -51,6 +51,7 @@ MISTAKES: list[tuple[str, str]] = [
     ("bench sweep --seeds one-two --scenario clean", "--seeds"),
     ("bench sweep --timings every --scenario clean", "--timings"),
     ("bench sweep --scenario nowhere", "nowhere"),
+    ("bench sweep --court robocon2025 --camera seed-gazebo --scenario clean", "--camera"),
     ("export rosbag2 {tmp}/missing.mcap {tmp}/bag", "missing.mcap"),
     ("export rosbag2 {five} {tmp}", "exists"),
     ("calibrate intrinsics --images {tmp} --out {tmp}/c.json", "--board"),
