@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from courtloc.bench_twin import build_scenarios
+from courtloc.bench_twin import build_scenarios, start_config
 from courtloc.cli_errors import UsageError
 from courtloc.cliargs import JSON_STDOUT, add_json_argument, json_output, json_to_stdout, positive_float
 from courtloc.localizer.manifest import ManifestError
@@ -119,8 +119,7 @@ def render_walk(sc: Scenario, seconds: float) -> Walk:
 def localise(walk: Walk, predictor, sc: Scenario, idx: np.ndarray, times: np.ndarray,  # noqa: ANN001
              fused: bool) -> list[tuple[float, bool, float]]:
     """(time, valid, position error) of each frame, as the infer stage answers it (off the court: not valid)."""
-    x, y, yaw = sc.start_pose
-    tracker = Tracker(start=start_prior(StartConfig(x=x, y=y, yaw_deg=math.degrees(yaw))))
+    tracker = Tracker(start=start_prior(StartConfig(**start_config(sc, "pose"))))  # as `bench twin` tells the stage
     margin = InferConfig.model_fields["on_court_margin_m"].default
     fusion = OdometryFusion(FusionConfig(enabled=True)) if fused else None
     delivered, rows = 0, []

@@ -187,23 +187,32 @@ class GeometricLocalizer:
         showed the centre line and a far arc, each frame's fit valid in the wrong basin (cost 0.39) while the
         true pose 1 m away fitted at 0.02."""
         cfg = self.config
-        if not cfg.rival_probe_m or fit.cost <= cfg.rival_min_cost or fit.covariance is None:
+        if fit.cost <= cfg.rival_min_cost:
             return None
-        cov = np.asarray(fit.covariance, np.float64)[:2, :2]
-        if not np.all(np.isfinite(cov)):
-            return None
-        variances, axes = np.linalg.eigh(cov)
-        if variances[-1] < cfg.rival_min_anisotropy ** 2 * max(variances[0], 0.0):
-            return None
-        weakest = axes[:, -1]
-        offsets = [(sign * d * weakest[0], sign * d * weakest[1], 0.0) for d in cfg.rival_probe_m for sign in (1, -1)]
         best = None
-        for res in self._fit_starts(hits, fit.pose + np.array(offsets)):
+        for res in self._along_weakest(hits, fit, cfg.rival_probe_m, cfg.rival_min_anisotropy):
             far = math.hypot(*(res.pose[:2] - fit.pose[:2])) > cfg.acquire.merge_m
             if far and (res.valid or res.n_inliers >= fit.n_inliers // 2) and \
                     res.cost <= cfg.rival_cost_ratio * fit.cost and (best is None or res.cost < best.cost):
                 best = res
         return best
+
+    def _along_weakest(self, hits: ProjectedHits, fit: FitResult, distances: list[float],
+                       min_anisotropy: float = 1.0) -> list[FitResult]:
+        """The frame fitted from `fit`'s pose moved each of `distances` either way along its weakest position
+        direction, heading kept (`_rival`, `_pinned_or_free`); none without distances, without a finite covariance,
+        or when the weakest direction's std is less than `min_anisotropy` times the strongest's."""
+        if not distances or fit.covariance is None:
+            return []
+        cov = np.asarray(fit.covariance, np.float64)[:2, :2]
+        if not np.all(np.isfinite(cov)):
+            return []
+        variances, axes = np.linalg.eigh(cov)
+        if variances[-1] < min_anisotropy ** 2 * max(variances[0], 0.0):
+            return []
+        weakest = axes[:, -1]
+        offsets = [(sign * d * weakest[0], sign * d * weakest[1], 0.0) for d in distances for sign in (1, -1)]
+        return self._fit_starts(hits, fit.pose + np.array(offsets))
 
     def _regain_rival(self, hits: ProjectedHits, fit: FitResult) -> FitResult | None:
         """A fit of this frame from `fit`'s pose turned by `regain_yaw_probes_rad` either way that converged to
@@ -276,7 +285,6 @@ class GeometricLocalizer:
                     # vision only: 20 frames of such views, the velocity 0.6 m/s off and the posterior std 7 cm with
                     # the track 0.45 m off; the next frames answered valid 0.52 m off). A fit valid on its own does.
                     fused = self._answer(fused, new.pose, invalid=True)
-                    weak = pred.weak + 1
                 elif fused.valid and drifted:
                     # The track may have drifted (coasting, degenerate views): a lone valid fit then decides too
                     # much (one fit 0.55 m off with a 0.08 m std at the seed court's end line was fused as
@@ -321,17 +329,13 @@ class GeometricLocalizer:
         velocity in three frames and answered 15 valid poses up to 1.9 m off). Free along that way, the fit leaves it
         to the prediction (and to `regain_weak_frames`)."""
         cfg, fit = self.config, res.fit
-        if not cfg.tie_probe_m or not fit.valid or fit.covariance is None:
+        if not fit.valid or fit.covariance is None:
             return res
         cov = np.asarray(fit.covariance, np.float64)
         if not np.all(np.isfinite(cov)):
             return res
-        _, axes = np.linalg.eigh(cov[:2, :2])
-        weakest = axes[:, -1]
-        starts = [fit.pose + (sign * d * weakest[0], sign * d * weakest[1], 0.0) for d in cfg.tie_probe_m
-                  for sign in (1, -1)]
         limit = acquire.tie_limit(fit.cost, cfg.acquire)
-        for other in self._fit_starts(hits, np.array(starts)):
+        for other in self._along_weakest(hits, fit, cfg.tie_probe_m):
             offset = np.array([other.pose[0] - fit.pose[0], other.pose[1] - fit.pose[1], 0.0])
             apart = math.hypot(offset[0], offset[1])
             if apart > cfg.acquire.merge_m and other.cost <= limit and other.n_inliers >= _TIE_INLIERS * fit.n_inliers:

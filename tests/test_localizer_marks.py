@@ -203,8 +203,8 @@ def test_colour_marks_place_an_unpinned_hypothesis_along_its_line(robocon) -> No
 
 def test_an_unpinned_hypothesis_whose_line_never_meets_the_area_is_not_the_robot(robocon) -> None:  # noqa: ANN001
     """A hypothesis tracked off the court (x beyond the area's end) and free along y: no place on its line is one
-    the robot can stand on, so the marks rule it out, and the frame goes on (a twin run at 2.5 m/s raised here,
-    the infer stage's tracker with it, when no offset along the line was left to look at)."""
+    the robot can stand on, so the marks rule it out, and the frame goes on (the twin's kidnap walk, vision only,
+    raised here when no offset along the line was left to look at: the infer stage answered nothing for that frame)."""
     from courtloc.localizer import acquire, motion
 
     predictor, preprocessor, renderer = robocon
