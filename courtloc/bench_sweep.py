@@ -5,14 +5,18 @@ rendered once per seed through the robot's own preprocess (hits and colour marks
 through the infer stage's tracker (`Tracker.step`, with the stage's start prior and off-court rule) under the frame
 timings a chain gives it: every frame at the camera's rate (`all`), 5 % or 25 % of the frames lost at random with
 2-3 ms of capture jitter (`drop5`, `drop25`), every second or third frame (`half`, `third`). Vision only, and fused
-with the twin's wheel odometry and gyro (`sim/odometry.py`) where only driving moves the robot (not `kidnap`: the
-simulated wheels would feel the teleport). The infer-process kill of `outage` is not modelled here.
+with the twin's wheel odometry and gyro (`sim/odometry.py`; a kidnap's teleport is not felt by the wheels, as with
+the twin's MCU in `bench twin`). The infer-process kill of `outage` is not modelled here.
 
 `courtloc bench twin` runs one walk in real time through the real stages; this one runs tens of walks in minutes,
 which is where a rare valid-and-wrong pose shows. Per scenario and mode: runs, n, valid_fraction, valid_mean_err_m,
 valid_wrong (valid poses more than 0.5 m off), valid_wrong_runs (each such run: seed, timing, first time, worst
-error), and by_timing (n, valid_fraction and valid_wrong of each timing's runs). No clock is read: a run repeats
-exactly on one machine (another CPU's floating point may tip a near-tie).
+error), and by_timing (n, valid_fraction and valid_wrong of each timing's runs). Where the walk has kidnaps, their
+recoveries as `bench twin` times them (courtloc/bench_twin_metrics.py), on capture times (no chain latency): from the
+first usable view after the teleport (courtloc/bench_twin_views.py) to the first valid pose, 0 when that came first;
+an event not recovered before the next counts with the time it had and in events_unrecovered; recovery_wrong counts
+first valid poses more than 0.5 m off. No clock is read: a run repeats exactly on one machine (another CPU's floating
+point may tip a near-tie).
 """
 from __future__ import annotations
 
@@ -23,13 +27,16 @@ import os
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from courtloc.bench_twin import build_scenarios, start_config
+from courtloc.bench_twin_metrics import TruthSample
+from courtloc.bench_twin_views import ViewJudge
 from courtloc.cli_errors import UsageError
 from courtloc.cliargs import JSON_STDOUT, add_json_argument, json_output, json_to_stdout, positive_float
+from courtloc.lab.metrics import WRONG_M
 from courtloc.localizer.manifest import ManifestError
 from courtloc.localizer.odometry_fusion import FusionConfig, OdometryFusion
 from courtloc.localizer.package import bundled_package
@@ -46,7 +53,6 @@ from courtloc.sim.scenarios import Scenario
 from courtloc.sim.source import SimSource
 
 TIMINGS = ("all", "drop5", "drop25", "half", "third")
-WRONG_M = 0.5  # a valid pose farther than this from the truth is valid and wrong
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -97,7 +103,8 @@ class Walk:
     truth: np.ndarray  # (n, 3)
     width: int
     height: int
-    odometry: list | None  # sim.odometry Delivered, None where the wheels cannot follow the robot
+    odometry: list  # sim.odometry Delivered
+    kidnaps_s: list[float]
 
 
 def render_walk(sc: Scenario, seconds: float) -> Walk:
@@ -110,15 +117,16 @@ def render_walk(sc: Scenario, seconds: float) -> Walk:
             hits.append(pre.process(frame))
             marks.append(pre.marks(frame))
             truth.append(pose)
-        odometry = None if sc.sim.kidnaps_s else list(
-            OdometrySimulator(source.trajectory, OdometrySimConfig(), seed=sc.sim.seed).stream(seconds + 1.0))
+        odometry = list(OdometrySimulator(source.trajectory, OdometrySimConfig(), seed=sc.sim.seed,
+                                          kidnaps_s=sc.sim.kidnaps_s).stream(seconds + 1.0))
         width, height = source.camera.width, source.camera.height
-    return Walk(hits, marks, np.array(truth).reshape(-1, 3), width, height, odometry)
+    return Walk(hits, marks, np.array(truth).reshape(-1, 3), width, height, odometry, list(sc.sim.kidnaps_s))
 
 
 def localise(walk: Walk, predictor, sc: Scenario, idx: np.ndarray, times: np.ndarray,  # noqa: ANN001
              fused: bool) -> list[tuple[float, bool, float]]:
-    """(time, valid, position error) of each frame, as the infer stage answers it (off the court: not valid)."""
+    """(time, valid, position error) of each frame of `idx`, as the infer stage answers it (off the court: not
+    valid)."""
     tracker = Tracker(start=start_prior(StartConfig(**start_config(sc, "pose"))))  # as `bench twin` tells the stage
     margin = InferConfig.model_fields["on_court_margin_m"].default
     fusion = OdometryFusion(FusionConfig(enabled=True)) if fused else None
@@ -143,15 +151,51 @@ def run_walk(sc: Scenario, seconds: float, timings: list[str], modes: list[str],
     walk = render_walk(sc, seconds)
     court = sc.sim.court
     predictor = load_predictor(bundled_package(court, camera or court))
+    usable = UsableViews(walk, ViewJudge(predictor))
     out: dict[str, list[dict[str, Any]]] = {}
     for mode in modes:
-        if mode == "fused" and walk.odometry is None:
-            continue
         for k, timing in enumerate(timings):
             rng = np.random.default_rng([sc.sim.seed, k])
             idx, times = frame_timing(len(walk.hits), sc.sim.fps, timing, rng)
             rows = localise(walk, predictor, sc, idx, times, mode == "fused")
-            out.setdefault(mode, []).append({"seed": sc.sim.seed, "timing": timing, **summarise(rows)})
+            out.setdefault(mode, []).append({"seed": sc.sim.seed, "timing": timing, **summarise(rows),
+                                             "recoveries": recoveries(walk, sc.sim.fps, idx, rows, usable)})
+    return out
+
+
+class UsableViews:
+    """Whether each frame of a walk is a usable view (`ViewJudge`), judged once a frame when first asked."""
+
+    def __init__(self, walk: Walk, judge: ViewJudge) -> None:
+        self.walk, self.judge = walk, judge
+        self._known: dict[int, bool] = {}
+
+    def __call__(self, i: int) -> bool:
+        if i not in self._known:
+            x, y, yaw = self.walk.truth[i]
+            self._known[i] = self.judge.usable(self.walk.hits[i], TruthSample(i, i, float(x), float(y), float(yaw)))
+        return self._known[i]
+
+
+def recoveries(walk: Walk, fps: float, idx: np.ndarray, rows: list[tuple[float, bool, float]],
+               usable: Callable[[int], bool]) -> list[dict[str, Any]]:
+    """Each kidnap's recovery in one run (module docstring): the frames delivered (`idx`, their `rows`) from the
+    first frame at or after the teleport to the next one's (or the end)."""
+    out = []
+    firsts = [math.ceil(t_s * fps - 1e-9) for t_s in walk.kidnaps_s]
+    for first, end in zip(firsts, [*firsts[1:], len(walk.hits)]):
+        window = [(i, row) for i, row in zip(idx, rows) if first <= i < end]
+        if not window:
+            continue
+        view = next((row[0] for i, row in window if usable(int(i))), None)
+        valid = next((row for _, row in window if row[1]), None)
+        horizon = window[-1][1][0]
+        if valid is None:
+            out.append({"event_s": window[0][1][0], "recovered": False, "wrong": False,
+                        "recovery_s": None if view is None else max(horizon - view, 0.0)})
+        else:
+            out.append({"event_s": window[0][1][0], "recovered": True, "wrong": bool(valid[2] > WRONG_M),
+                        "recovery_s": 0.0 if view is None or valid[0] < view else valid[0] - view})
     return out
 
 
@@ -174,10 +218,21 @@ def combine(runs: list[dict[str, Any]]) -> dict[str, Any]:
         frames = sum(r["n"] for r in of)
         by_timing[timing] = {"n": frames, "valid_fraction": sum(r["valid"] for r in of) / frames if frames else None,
                              "valid_wrong": sum(r["valid_wrong"] for r in of)}
-    return {"runs": len(runs), "n": n, "valid_fraction": valid / n if n else None,
-            "valid_mean_err_m": sum(r["valid_err_sum_m"] for r in runs) / valid if valid else None,
-            "valid_wrong": sum(r["valid_wrong"] for r in runs), "valid_wrong_runs": wrong_runs,
-            "by_timing": by_timing}
+    report = {"runs": len(runs), "n": n, "valid_fraction": valid / n if n else None,
+              "valid_mean_err_m": sum(r["valid_err_sum_m"] for r in runs) / valid if valid else None,
+              "valid_wrong": sum(r["valid_wrong"] for r in runs), "valid_wrong_runs": wrong_runs,
+              "by_timing": by_timing}
+    events = [{"seed": r["seed"], "timing": r["timing"], **e} for r in runs for e in r.get("recoveries", [])]
+    if events:
+        times = [e["recovery_s"] for e in events if e["recovery_s"] is not None]
+        slowest = max((e for e in events if e["recovery_s"] is not None), key=lambda e: e["recovery_s"], default=None)
+        report.update(events=len(events), recovery_s_mean=float(np.mean(times)) if times else None,
+                      recovery_s_max=max(times) if times else None, slowest_recovery=slowest,
+                      recovery_s_p90=float(np.percentile(times, 90)) if times else None,
+                      events_unrecovered=sum(not e["recovered"] for e in events),
+                      events_without_view=sum(e["recovery_s"] is None for e in events),
+                      recovery_wrong=sum(e["wrong"] for e in events))
+    return report
 
 
 def run(args: argparse.Namespace) -> int:
@@ -211,9 +266,12 @@ def run(args: argparse.Namespace) -> int:
     table = sys.stdout if args.json is not None and not json_to_stdout(args.json) else sys.stderr
     for name, by_mode in report.items():
         for mode, r in by_mode.items():
+            recovery = "" if "events" not in r else (
+                f"  recovery mean {r['recovery_s_mean'] or math.nan:.2f} max {r['recovery_s_max'] or math.nan:.2f} s"
+                f" ({r['events_unrecovered']} of {r['events']} unrecovered, {r['recovery_wrong']} wrong)")
             print(f"{name:14s} {mode:11s} runs {r['runs']:3d}  frames {r['n']:6d}  valid {r['valid_fraction']:.3f}"
                   f"  valid mean {(r['valid_mean_err_m'] or math.nan) * 100:.1f} cm  valid_wrong {r['valid_wrong']}"
-                  f" in {len(r['valid_wrong_runs'])} runs", file=table)
+                  f" in {len(r['valid_wrong_runs'])} runs{recovery}", file=table)
     report["run"] = {"court": args.court, "camera": args.camera, "seeds": seeds, "seconds": args.seconds,
                      "timings": timings, "mode": args.mode, "wrong_m": WRONG_M,
                      "command": " ".join(["courtloc", *sys.argv[1:]])}

@@ -269,7 +269,12 @@ class GeometricLocalizer:
         has its own rules for deciding."""
         mcfg = self.config.motion
         pred = motion.predict(state, t, mcfg)
-        res = self._pinned_or_free(hits, self.localize(hits, pred.pose))
+        res = self.localize(hits, pred.pose)
+        if t is None or state.t is None or t > state.t:
+            # Only where the constant-velocity model predicts: odometry's prediction (the state's time already the
+            # frame's) follows the robot along the lines on its own, and a demoted fit there only widened the
+            # posterior (robocon2025 twin, occluded, fused through the chain: 97.3 -> 91.0 % valid with the probes).
+            res = self._pinned_or_free(hits, res)
         r = motion.measurement_cov(res.fit.covariance, mcfg)
         if (res.valid or res.trackable) and r is not None:
             innov = motion.innovation(pred, res.pose, r)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Iterator
+from typing import Iterator, Sequence
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -51,16 +51,20 @@ class Delivered:
 
 class OdometrySimulator:
     def __init__(self, trajectory: Trajectory, config: OdometrySimConfig, seed: int = 0,
-                 robot_id: str = "robot1") -> None:
+                 robot_id: str = "robot1", kidnaps_s: Sequence[float] = ()) -> None:
         self.trajectory = trajectory
+        self.kidnaps_s = [float(t) for t in kidnaps_s]  # teleports the wheels do not feel
         self.config = config
         self.rng = np.random.default_rng(seed)
         self.intake = OdometryIntake(robot_id, OdometryConfig())
         self._slip_until = -math.inf
 
     def _sample(self, i: int, t0: float, t1: float) -> OdometrySample:
-        a, b = self.trajectory.pose_at(t0), self.trajectory.pose_at(t1)
-        vx, vy, wz = body_velocity(a, b, t1 - t0)
+        if any(t0 < t <= t1 for t in self.kidnaps_s):
+            forward, left, turn = felt_motion(self.trajectory, self.kidnaps_s, t0, t1)
+            vx, vy, wz = forward / (t1 - t0), left / (t1 - t0), turn / (t1 - t0)
+        else:
+            vx, vy, wz = body_velocity(self.trajectory.pose_at(t0), self.trajectory.pose_at(t1), t1 - t0)
         return self.measure(i, vx, vy, wz, t1 - t0, t1)
 
     def measure(self, seq: int, vx: float, vy: float, wz: float, dt: float, t_end_s: float) -> OdometrySample:
@@ -112,3 +116,18 @@ def body_velocity(a: tuple[float, float, float], b: tuple[float, float, float],
     c, s = math.cos(a[2]), math.sin(a[2])
     dx, dy = b[0] - a[0], b[1] - a[1]
     return (c * dx + s * dy) / dt, (-s * dx + c * dy) / dt, wrap_angle(b[2] - a[2]) / dt
+
+
+def felt_motion(trajectory: Trajectory, kidnaps_s: Sequence[float], s0: float,
+                s1: float) -> tuple[float, float, float]:
+    """Body-frame displacement (forward, left) and turn from sim time s0 to s1 as the wheels feel it: a
+    teleport in between is not motion, only the driving on either side of it is."""
+    cuts = [s0, *sorted(t for t in kidnaps_s if s0 < t <= s1), s1]
+    forward = left = turn = 0.0
+    for a, b in zip(cuts, cuts[1:]):
+        end = b - 1e-6 if b in kidnaps_s else b  # a kidnap piece ends just before the teleport
+        if end <= a:
+            continue
+        vx, vy, wz = body_velocity(trajectory.pose_at(a), trajectory.pose_at(end), end - a)
+        forward, left, turn = forward + vx * (end - a), left + vy * (end - a), turn + wz * (end - a)
+    return forward, left, turn

@@ -38,7 +38,7 @@ from courtloc.services.shooter_bridge.protocol import (
     encode,
     encode_odometry,
 )
-from courtloc.sim.odometry import OdometrySimConfig, OdometrySimulator, body_velocity
+from courtloc.sim.odometry import OdometrySimConfig, OdometrySimulator, felt_motion
 from courtloc.sim.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
@@ -64,21 +64,6 @@ class SimClock:
     def at(self, mono_ns: int) -> float:
         t0 = self._t0_ns
         return 0.0 if t0 is None else max((mono_ns - t0) / 1e9, 0.0)
-
-
-def felt_motion(trajectory: Trajectory, kidnaps_s: Sequence[float], s0: float,
-                s1: float) -> tuple[float, float, float]:
-    """Body-frame displacement (forward, left) and turn from sim time s0 to s1 as the wheels feel it: a
-    teleport in between is not motion, only the driving on either side of it is."""
-    cuts = [s0, *sorted(t for t in kidnaps_s if s0 < t <= s1), s1]
-    forward = left = turn = 0.0
-    for a, b in zip(cuts, cuts[1:]):
-        end = b - 1e-6 if b in kidnaps_s else b  # a kidnap piece ends just before the teleport
-        if end <= a:
-            continue
-        vx, vy, wz = body_velocity(trajectory.pose_at(a), trajectory.pose_at(end), end - a)
-        forward, left, turn = forward + vx * (end - a), left + vy * (end - a), turn + wz * (end - a)
-    return forward, left, turn
 
 
 class TwinMcu:

@@ -12,9 +12,9 @@ import pytest
 from courtloc.services.shooter_bridge.config import LinkConfig
 from courtloc.services.shooter_bridge.link import McuLink
 from courtloc.services.shooter_bridge.protocol import StatusFlag
-from courtloc.sim.odometry import OdometrySimConfig
+from courtloc.sim.odometry import OdometrySimConfig, felt_motion
 from courtloc.sim.trajectory import WaypointTrajectory
-from courtloc.sim.twin_mcu import SimClock, TwinMcu, TwinMcuConfig, felt_motion
+from courtloc.sim.twin_mcu import SimClock, TwinMcu, TwinMcuConfig
 
 LOOP = WaypointTrajectory([(0.5, -2.0, 0.2), (4.5, -1.0, 0.9), (4.0, 2.5, 2.4)], speed=1.5, yaw_rate=1.0)
 
@@ -56,6 +56,28 @@ def test_the_wheels_do_not_feel_a_kidnap():
     assert forward == pytest.approx(0.1, abs=1e-5) and left == pytest.approx(0.0, abs=1e-9)
     assert turn == pytest.approx(0.0, abs=1e-9)
     assert felt_motion(Teleported(), [], 0.95, 1.05)[2] == pytest.approx(1.0)  # unless told it was a teleport
+
+
+def test_the_simulated_odometry_stream_does_not_feel_a_kidnap_either():
+    """`bench sweep` fuses the kidnap walks with `OdometrySimulator`'s stream, which must leave the teleport out as
+    the twin MCU does: every window valid, dead-reckoned along the driving only."""
+    from courtloc.sim.odometry import OdometrySimulator
+
+    class Teleported:  # drives ahead at 1 m/s; at t = 1 s it is put down 5 m away, turned by 1 rad, and drives on
+        def pose_at(self, t: float) -> tuple[float, float, float]:
+            return (t, 0.0, 0.0) if t < 1.0 else (5.0 + (t - 1.0) * math.cos(1.0), 3.0 + (t - 1.0) * math.sin(1.0), 1.0)
+
+    quiet = OdometrySimConfig(speed_noise_m_s=0.0, wheel_yaw_noise_rad_s=0.0, gyro_noise_rad_s=0.0,
+                              gyro_bias_rad_s=0.0, slip_rate_hz=0.0)
+    felt = list(OdometrySimulator(Teleported(), quiet, kidnaps_s=[1.0]).stream(2.0))
+    told = list(OdometrySimulator(Teleported(), quiet).stream(2.0))
+    assert all(d.message.header.valid for d in felt)
+    assert max(abs(d.message.wz_gyro_rad_s) for d in felt) == 0.0
+    # 2 s at 1 m/s, read with the simulated wheels' scale error: one epoch, no teleport in it
+    assert len({d.message.epoch for d in felt}) == 1
+    assert felt[-1].message.odom_x_m == pytest.approx(2.0 * quiet.wheel_scale, abs=0.02)
+    assert felt[-1].message.odom_y_m == pytest.approx(0.0, abs=1e-6)
+    assert not all(d.message.header.valid for d in told)  # without kidnaps_s the teleport is a window to refuse
 
 
 @pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs ptys")
