@@ -235,6 +235,10 @@ def combine(runs: list[dict[str, Any]]) -> dict[str, Any]:
     return report
 
 
+def _num(value: float | None) -> float:
+    return math.nan if value is None else value
+
+
 def run(args: argparse.Namespace) -> int:
     names = [n.strip() for n in args.scenario.split(",") if n.strip()]
     seeds = parse_seeds(args.seeds)
@@ -267,7 +271,7 @@ def run(args: argparse.Namespace) -> int:
     for name, by_mode in report.items():
         for mode, r in by_mode.items():
             recovery = "" if "events" not in r else (
-                f"  recovery mean {r['recovery_s_mean'] or math.nan:.2f} max {r['recovery_s_max'] or math.nan:.2f} s"
+                f"  recovery mean {_num(r['recovery_s_mean']):.2f} max {_num(r['recovery_s_max']):.2f} s"
                 f" ({r['events_unrecovered']} of {r['events']} unrecovered, {r['recovery_wrong']} wrong)")
             print(f"{name:14s} {mode:11s} runs {r['runs']:3d}  frames {r['n']:6d}  valid {r['valid_fraction']:.3f}"
                   f"  valid mean {(r['valid_mean_err_m'] or math.nan) * 100:.1f} cm  valid_wrong {r['valid_wrong']}"
