@@ -227,7 +227,7 @@ def combine(runs: list[dict[str, Any]]) -> dict[str, Any]:
         times = [e["recovery_s"] for e in events if e["recovery_s"] is not None]
         slowest = max((e for e in events if e["recovery_s"] is not None), key=lambda e: e["recovery_s"], default=None)
         report.update(events=len(events), recovery_s_mean=float(np.mean(times)) if times else None,
-                      recovery_s_max=max(times) if times else None, slowest_recovery=slowest,
+                      recovery_s_max=None if slowest is None else slowest["recovery_s"], slowest_recovery=slowest,
                       recovery_s_p90=float(np.percentile(times, 90)) if times else None,
                       events_unrecovered=sum(not e["recovered"] for e in events),
                       events_without_view=sum(e["recovery_s"] is None for e in events),

@@ -190,7 +190,8 @@ class LocalizerConfig(BaseModel):
         description="a tracked fit valid on its own is also fitted from its pose moved this far either way along its "
         "weakest direction ([]: never); a start that converges elsewhere (beyond acquire.merge_m) and explains the "
         "view as well (within acquire's tie, with 80 % of the inliers) shows the view does not pin that direction, "
-        "whatever the fit's covariance says: the fit counts as trackable only, free towards the other place")
+        "whatever the fit's covariance says: the fit counts as trackable only, free towards the other place. Only "
+        "where the constant-velocity model predicts (not a state odometry carried to the frame)")
     regain_yaw_probes_rad: list[float] = Field(
         default_factory=lambda: [0.2, 0.35], max_length=8,
         description="a drifted track's re-anchoring fit (motion.regain_std_m, regain_weak_frames) is also fitted from "

@@ -268,12 +268,13 @@ class GeometricLocalizer:
         (`_regain_rival`), and must be followed by a valid frame; acquisition, which steps its hypotheses here,
         has its own rules for deciding."""
         mcfg = self.config.motion
+        # Odometry hands over a state already at the frame's time; otherwise the constant-velocity model predicts it.
+        constant_velocity = t is None or state.t is None or t > state.t
         pred = motion.predict(state, t, mcfg)
         res = self.localize(hits, pred.pose)
-        if t is None or state.t is None or t > state.t:
-            # Only where the constant-velocity model predicts: odometry's prediction (the state's time already the
-            # frame's) follows the robot along the lines on its own, and a demoted fit there only widened the
-            # posterior (robocon2025 twin, occluded, fused through the chain: 97.3 -> 91.0 % valid with the probes).
+        if constant_velocity:
+            # Only there: odometry's prediction follows the robot along the lines on its own, and a demoted fit only
+            # widened its posterior (robocon2025 twin, occluded, fused through the chain: 97.3 -> 91.0 % valid).
             res = self._pinned_or_free(hits, res)
         r = motion.measurement_cov(res.fit.covariance, mcfg)
         if (res.valid or res.trackable) and r is not None:
@@ -313,7 +314,7 @@ class GeometricLocalizer:
                 # enough to answer valid from (a single bad fit at a line end jumped 0.4-0.6 m on the
                 # seed recording): the next frame must agree with the restarted track.
                 return self._jump(res, t)
-        if guard_regain and res.fit.beyond_jump and (t is None or state.t is None or t > state.t):
+        if guard_regain and res.fit.beyond_jump and constant_velocity:
             # A valid fit farther from the constant-velocity prediction than a track may move is a jump too, not
             # a frame to coast through: the seed twin's fast walk (2.5 m/s) seen at 10 fps reversed at the area's
             # edge, the prediction overshot by 0.5 m, two frames' fits at the truth (100 inliers, 1-2 cm std) were
@@ -334,18 +335,16 @@ class GeometricLocalizer:
         velocity in three frames and answered 15 valid poses up to 1.9 m off). Free along that way, the fit leaves it
         to the prediction (and to `regain_weak_frames`)."""
         cfg, fit = self.config, res.fit
-        if not fit.valid or fit.covariance is None:
-            return res
-        cov = np.asarray(fit.covariance, np.float64)
-        if not np.all(np.isfinite(cov)):
+        if not fit.valid:
             return res
         limit = acquire.tie_limit(fit.cost, cfg.acquire)
-        for other in self._along_weakest(hits, fit, cfg.tie_probe_m):
+        for other in self._along_weakest(hits, fit, cfg.tie_probe_m):  # none without a finite covariance
             offset = np.array([other.pose[0] - fit.pose[0], other.pose[1] - fit.pose[1], 0.0])
             apart = math.hypot(offset[0], offset[1])
             if apart > cfg.acquire.merge_m and other.cost <= limit and other.n_inliers >= _TIE_INLIERS * fit.n_inliers:
-                free = replace(fit, valid=False, quality=min(fit.quality, 0.49),
-                               covariance=cov + np.outer(offset, offset), position_std_m=max(fit.position_std_m, apart))
+                cov = np.asarray(fit.covariance, np.float64) + np.outer(offset, offset)
+                free = replace(fit, valid=False, quality=min(fit.quality, 0.49), covariance=cov,
+                               position_std_m=max(fit.position_std_m, apart))
                 return LocalizeResult(pose=res.pose, fit=free, mode=res.mode, alternatives=res.alternatives,
                                       status=res.status)
         return res

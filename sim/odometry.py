@@ -60,6 +60,8 @@ class OdometrySimulator:
         self._slip_until = -math.inf
 
     def _sample(self, i: int, t0: float, t1: float) -> OdometrySample:
+        # Windows without a teleport keep the one-piece velocity: the same stream, to the last bit, as before kidnaps
+        # were known here (the sweeps' committed results replay exactly).
         if any(t0 < t <= t1 for t in self.kidnaps_s):
             forward, left, turn = felt_motion(self.trajectory, self.kidnaps_s, t0, t1)
             vx, vy, wz = forward / (t1 - t0), left / (t1 - t0), turn / (t1 - t0)

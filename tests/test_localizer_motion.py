@@ -369,9 +369,10 @@ def test_the_tie_probes_leave_a_state_odometry_carried_to_the_frame_alone() -> N
     for frame in data["frames"]:
         raw = np.array(frame["hits"], np.int16).reshape(-1, 4)
         hits = predictor.projected_hits(raw)
-        for how, before in (("predicted", state), ("carried", motion.predict(state, frame["t"], loc.config.motion))):
+        carried = motion.predict(state, frame["t"], loc.config.motion)  # as odometry hands it over: at the frame
+        own = loc.localize(hits, carried.pose)  # the fit both steps start from
+        for how, before in (("predicted", state), ("carried", carried)):
             step = loc._step(hits, before, frame["t"])
-            own = loc.localize(hits, motion.predict(state, frame["t"], loc.config.motion).pose)
             demoted[how] += bool(own.fit.valid and not step.result.fit.valid)
         _, state = predictor.track(raw, width, height, state, t=frame["t"],
                                    marks=np.array(frame["marks"], np.int16).reshape(-1, 3))
