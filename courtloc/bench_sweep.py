@@ -13,10 +13,11 @@ which is where a rare valid-and-wrong pose shows. Per scenario and mode: runs, n
 valid_wrong (valid poses more than 0.5 m off), valid_wrong_runs (each such run: seed, timing, first time, worst
 error), and by_timing (n, valid_fraction and valid_wrong of each timing's runs). Where the walk has kidnaps, their
 recoveries as `bench twin` times them (courtloc/bench_twin_metrics.py), on capture times (no chain latency): from the
-first usable view after the teleport (courtloc/bench_twin_views.py) to the first valid pose, 0 when that came first;
-an event not recovered before the next counts with the time it had and in events_unrecovered; recovery_wrong counts
-first valid poses more than 0.5 m off. No clock is read: a run repeats exactly on one machine (another CPU's floating
-point may tip a near-tie).
+first usable view after the teleport (courtloc/bench_twin_views.py: held over a few delivered frames, showing the
+side) to the first valid pose within 0.5 m, 0 when that came first; an event not recovered before the next counts
+with the time it had and in events_unrecovered, one without such a view in events_without_view; recovery_wrong
+counts first valid poses more than 0.5 m off. No clock is read: a run repeats exactly on one machine (another CPU's
+floating point may tip a near-tie).
 """
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ import numpy as np
 
 from courtloc.bench_twin import build_scenarios, start_config
 from courtloc.bench_twin_metrics import TruthSample
-from courtloc.bench_twin_views import ViewJudge
+from courtloc.bench_twin_views import ViewJudge, first_view
 from courtloc.cli_errors import UsageError
 from courtloc.cliargs import JSON_STDOUT, add_json_argument, json_output, json_to_stdout, positive_float
 from courtloc.lab.metrics import WRONG_M
@@ -159,43 +160,58 @@ def run_walk(sc: Scenario, seconds: float, timings: list[str], modes: list[str],
             idx, times = frame_timing(len(walk.hits), sc.sim.fps, timing, rng)
             rows = localise(walk, predictor, sc, idx, times, mode == "fused")
             out.setdefault(mode, []).append({"seed": sc.sim.seed, "timing": timing, **summarise(rows),
-                                             "recoveries": recoveries(walk, sc.sim.fps, idx, rows, usable)})
+                                             "recoveries": recoveries(walk, sc.sim.fps, idx, rows, usable,
+                                                                      usable.shows_side)})
     return out
 
 
 class UsableViews:
-    """Whether each frame of a walk is a usable view (`ViewJudge`), judged once a frame when first asked."""
+    """Whether each frame of a walk is usable (`ViewJudge.usable`) and shows the robot's side (`tells_side`),
+    judged once a frame when first asked."""
 
     def __init__(self, walk: Walk, judge: ViewJudge) -> None:
         self.walk, self.judge = walk, judge
         self._known: dict[int, bool] = {}
+        self._sided: dict[int, bool] = {}
 
     def __call__(self, i: int) -> bool:
         if i not in self._known:
-            x, y, yaw = self.walk.truth[i]
-            self._known[i] = self.judge.usable(self.walk.hits[i], TruthSample(i, i, float(x), float(y), float(yaw)))
+            self._known[i] = self.judge.usable(self.walk.hits[i], self._truth(i))
         return self._known[i]
+
+    def shows_side(self, i: int) -> bool:
+        if i not in self._sided:
+            self._sided[i] = self.judge.tells_side(self.walk.marks[i], self._truth(i))
+        return self._sided[i]
+
+    def _truth(self, i: int) -> TruthSample:
+        x, y, yaw = self.walk.truth[i]
+        return TruthSample(i, i, float(x), float(y), float(yaw))
 
 
 def recoveries(walk: Walk, fps: float, idx: np.ndarray, rows: list[tuple[float, bool, float]],
-               usable: Callable[[int], bool]) -> list[dict[str, Any]]:
+               usable: Callable[[int], bool], shows_side: Callable[[int], bool] | None = None) -> list[dict[str, Any]]:
     """Each kidnap's recovery in one run (module docstring): the frames delivered (`idx`, their `rows`) from the
-    first frame at or after the teleport to the next one's (or the end)."""
+    first frame at or after the teleport to the next one's (or the end). `shows_side`: whether a frame tells the
+    robot from its twin (None: every frame does)."""
     out = []
     firsts = [math.ceil(t_s * fps - 1e-9) for t_s in walk.kidnaps_s]
     for first, end in zip(firsts, [*firsts[1:], len(walk.hits)]):
-        window = [(i, row) for i, row in zip(idx, rows) if first <= i < end]
+        window = [(int(i), row) for i, row in zip(idx, rows) if first <= i < end]
         if not window:
             continue
-        view = next((row[0] for i, row in window if usable(int(i))), None)
+        k = first_view([i for i, _ in window], usable, shows_side)
+        view = None if k is None else window[k][1][0]
         valid = next((row for _, row in window if row[1]), None)
+        right = next((row for _, row in window if row[1] and row[2] <= WRONG_M), None)
         horizon = window[-1][1][0]
-        if valid is None:
-            out.append({"event_s": window[0][1][0], "recovered": False, "wrong": False,
-                        "recovery_s": None if view is None else max(horizon - view, 0.0)})
+        event = {"event_s": window[0][1][0], "recovered": right is not None,
+                 "wrong": valid is not None and bool(valid[2] > WRONG_M)}
+        if right is None:
+            event["recovery_s"] = None if view is None else max(horizon - view, 0.0)
         else:
-            out.append({"event_s": window[0][1][0], "recovered": True, "wrong": bool(valid[2] > WRONG_M),
-                        "recovery_s": 0.0 if view is None or valid[0] < view else valid[0] - view})
+            event["recovery_s"] = 0.0 if view is None or right[0] < view else right[0] - view
+        out.append(event)
     return out
 
 

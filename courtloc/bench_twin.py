@@ -43,7 +43,7 @@ from courtloc.cli_errors import RUN_EXIT, UsageError
 from courtloc.cliargs import JSON_STDOUT, add_json_argument, json_output, json_to_stdout, positive_float
 from courtloc.common import codec
 from courtloc.common.messages import Edges, GroundTruth, Pose
-from courtloc.common.payloads import edges_hits
+from courtloc.common.payloads import edges_hits, edges_marks
 from courtloc.common.services_table import SERVICES, TOPICS
 from courtloc.launcher import Supervisor, write_effective_config
 from courtloc.services.deployment import DeploymentConfig, load_deployment
@@ -311,6 +311,7 @@ class _Record:
     truths: list = field(default_factory=list)
     poses: list = field(default_factory=list)
     hits: dict = field(default_factory=dict)  # capture stamp -> the frame's edge hits (usable views)
+    marks: dict = field(default_factory=dict)  # capture stamp -> the frame's colour marks (a kidnap's view: the side)
     last_seq: int = -1
     undecodable: int = 0
 
@@ -351,6 +352,7 @@ class TwinRecorder(BusWatcher):
                 message = codec.decode(payload, TOPICS[path].message)
                 if isinstance(message, Edges):
                     self.record.hits[message.header.capture_mono_ns] = edges_hits(message)
+                    self.record.marks[message.header.capture_mono_ns] = edges_marks(message)
                     continue
             except (codec.DecodeError, ValueError):
                 self.record.undecodable += 1
@@ -440,7 +442,7 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any],  # 
     events = scenario_events(sc, truths, poses, args.fps, kill_ns, real_time=fused)
     court = load_court(sc.sim.court)
     judge = view_judge(court.name, load_camera(config.camera.sim.get("camera") or court.default_camera).name)
-    events = with_views(events, truths, recorder.record.hits, judge, end_ns)
+    events = with_views(events, truths, recorder.record.hits, judge, end_ns, recorder.record.marks)
     result = twin_metrics(poses, truths, events, end_ns)
     first = min((t.capture_ns for t in truths), default=0)
     last = max((t.capture_ns for t in truths), default=0)

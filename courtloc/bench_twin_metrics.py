@@ -7,13 +7,15 @@ Every pose is matched to the camera's ground truth of the same frame by the head
   ignores the flag would get); the same with the prefix `valid_` over the valid ones only.
 - valid_fraction: valid poses / matched poses. valid_wrong: valid poses more than `wrong_m` off.
 - recovery: for each event (the start of the run, a kidnap, the end of an outage, a restarted infer
-  process) the first valid pose captured at or after its first frame. `recovery_s`: from the capture of
-  the first usable view since the event (`Event.view_ns`, courtloc/bench_twin_views.py: a view whose lines
-  place the robot) to that pose's publication, 0 when the pose was valid before any usable view (odometry,
-  a prior); `recovery_from_event_s`: from the event's first frame. An event not recovered before the next
-  event (or the end of the run) counts with the time it had, as a lower bound, and is counted in
-  `events_unrecovered`; one that also had no usable view has no `recovery_s` (`events_without_view`).
-  Whether that first valid pose was wrong is kept per event and counted in `recovery_wrong`.
+  process) the first valid pose within `wrong_m` of the truth captured at or after its first frame (a valid
+  pose that is wrong recovers nothing). `recovery_s`: from the capture of the first usable view since the
+  event (`Event.view_ns`, courtloc/bench_twin_views.py: a view held over a few frames whose lines place the
+  robot and, after a kidnap, that shows its side) to that pose's publication, 0 when the pose was valid and
+  right before any usable view (odometry, a prior); `recovery_from_event_s`: from the event's first frame.
+  An event not recovered before the next event (or the end of the run) counts with the time it had, as a
+  lower bound, and is counted in `events_unrecovered`; one that also had no usable view has no
+  `recovery_s` (`events_without_view`). Whether the event's first valid pose was wrong is kept per event
+  and counted in `recovery_wrong`.
 - wrong_runs: the valid-and-wrong poses grouped into runs of consecutive poses (in capture order), the
   first `MAX_RUNS`: where a run starts and ends, how many poses, the worst error and the median yaw error
   (a run ~180 degrees off is the point-symmetric twin).
@@ -88,20 +90,23 @@ def _recoveries(events: list[Event], matched: list[tuple[PoseSample, float]], en
     valid = sorted(((p, e) for p, e in matched if p.valid), key=lambda pe: pe[0].capture_ns)
     out = []
     for event, horizon in in_windows(events, end_ns):
-        first = next(((p, err) for p, err in valid if event.start_ns <= p.capture_ns < horizon), None)
+        in_window = [(p, err) for p, err in valid if event.start_ns <= p.capture_ns < horizon]
+        first = in_window[0] if in_window else None
+        right = next(((p, err) for p, err in in_window if err <= wrong_m), None)
         view = event.usable_from()
         row: dict[str, Any] = {"kind": event.kind, "start_ns": event.start_ns,
-                               "view_after_s": None if view is None else (view - event.start_ns) / 1e9}
-        if first is None:
+                               "view_after_s": None if view is None else (view - event.start_ns) / 1e9,
+                               "first_valid_err_m": None if first is None else first[1],
+                               "first_valid_wrong": None if first is None else bool(first[1] > wrong_m)}
+        if right is None:
             row.update(recovered=False, recovery_from_event_s=max(horizon - event.start_ns, 0) / 1e9,
-                       recovery_s=None if view is None else max(horizon - view, 0) / 1e9,
-                       first_valid_err_m=None, first_valid_wrong=None)
+                       recovery_s=None if view is None else max(horizon - view, 0) / 1e9)
         else:
-            pose, err = first
-            # Valid before any usable view (odometry carried it, or a prior): nothing was waited for.
+            pose = right[0]
+            # Valid and right before any usable view (odometry carried it, or a prior): nothing was waited for.
             waited = 0 if view is None or pose.capture_ns < view else max(pose.published_ns - view, 0)
             row.update(recovered=True, recovery_from_event_s=max(pose.published_ns - event.start_ns, 0) / 1e9,
-                       recovery_s=waited / 1e9, first_valid_err_m=err, first_valid_wrong=bool(err > wrong_m))
+                       recovery_s=waited / 1e9)
         out.append(row)
     return out
 

@@ -41,25 +41,33 @@ def test_a_valid_pose_half_a_metre_off_is_counted_with_its_run() -> None:
                                    "all": {"n": 1, "valid_fraction": 1.0, "valid_wrong": 0}}
 
 
-def test_kidnap_recoveries_are_timed_from_the_first_usable_view() -> None:
-    """10 fps, kidnaps at 1.0, 2.5 and 3.5 s. The first: usable from 1.3 s, valid again at 1.6 s. The second: valid
-    (and wrong) at 2.7 s, before its first usable view. The third: usable from 3.6 s, never valid before the end."""
+def test_kidnap_recoveries_are_timed_from_the_first_held_usable_view_to_a_right_pose() -> None:
+    """10 fps, kidnaps at 1.0, 2.5 and 3.5 s. The first: a lone usable frame at 1.1 s, a held view from 1.5 s, valid
+    again at 1.7 s. The second: valid and wrong from 2.7 s (before its first usable view, 2.9 s), right from 3.0 s.
+    The third: usable from 3.6 s, never valid before the end."""
     n, fps = 40, 10.0
     walk = Walk(hits=[np.zeros((0, 4), np.int16)] * n, marks=[np.zeros((0, 3), np.int16)] * n,
                 truth=np.zeros((n, 3)), width=640, height=480, odometry=[], kidnaps_s=[1.0, 2.5, 3.5])
-    valid = {*range(0, 10), *range(16, 25), *range(27, 35)}
-    rows = [(i / fps, i in valid, 3.0 if i == 27 else 0.02) for i in range(n)]
-    usable = {*range(0, 10), *range(13, 40)} - {25, 26, 27, 28, 35}
+    valid = {*range(0, 10), *range(17, 25), *range(27, 35)}
+    rows = [(i / fps, i in valid, 3.0 if i in (27, 28, 29) else 0.02) for i in range(n)]
+    usable = {*range(0, 10), 11, *range(15, 40)} - {25, 26, 27, 28, 35}
     events = recoveries(walk, fps, np.arange(n), rows, usable.__contains__)
     assert [e["event_s"] for e in events] == [1.0, 2.5, 3.5]
     assert [e["recovered"] for e in events] == [True, True, False]
     assert [e["wrong"] for e in events] == [False, True, False]
-    assert [round(e["recovery_s"], 9) for e in events] == [0.3, 0.0, 0.3]
+    assert [round(e["recovery_s"], 9) for e in events] == [0.2, 0.1, 0.3]
     report = combine([{"seed": 2, "timing": "all", **summarise(rows), "recoveries": events}])
     assert report["events"] == 3 and report["events_unrecovered"] == 1 and report["recovery_wrong"] == 1
     assert report["recovery_s_mean"] == pytest.approx(0.2) and report["recovery_s_max"] == pytest.approx(0.3)
-    assert report["slowest_recovery"]["seed"] == 2 and report["slowest_recovery"]["event_s"] == 1.0
-    # Frames the timing did not deliver are not views: every second frame, the first one is 1.4 s, back at 1.6 s.
+    assert report["slowest_recovery"]["seed"] == 2 and report["slowest_recovery"]["event_s"] == 3.5
+    # Frames that do not show the robot's side are no kidnap view: from 1.7 s, when it was already valid.
+    sided = recoveries(walk, fps, np.arange(n), rows, usable.__contains__, lambda i: i not in (15, 16))
+    assert round(sided[0]["recovery_s"], 9) == 0.0
+    # No frame shows it: a kidnap never recovered has no view to time from (events_without_view).
+    blind = recoveries(walk, fps, np.arange(n), rows, usable.__contains__, lambda i: False)
+    assert blind[2]["recovery_s"] is None and combine([{"seed": 2, "timing": "all", **summarise(rows),
+                                                        "recoveries": blind}])["events_without_view"] == 1
+    # Frames the timing did not deliver are not views: every second frame, the first one is 1.6 s, back at 1.8 s.
     half = np.arange(0, n, 2)
     events = recoveries(walk, fps, half, [rows[i] for i in half], usable.__contains__)
     assert round(events[0]["recovery_s"], 9) == 0.2

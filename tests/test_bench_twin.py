@@ -73,19 +73,21 @@ def test_yaw_error_wraps_around_pi():
     assert r["yaw_median_deg"] == pytest.approx(math.degrees(0.02))
 
 
-def test_recovery_is_start_of_view_to_first_valid_publication_and_censored_when_never():
+def test_recovery_is_start_of_view_to_first_valid_right_publication_and_censored_when_never():
     truths = _truths(40)
-    valid_frames = set(range(3, 10)) | {25}  # the start recovers at frame 3; the kidnap at 20 recovers at 25
+    # The start recovers at frame 3; after the kidnap at 20 frame 25 is valid 2 m off, frame 27 valid and right.
+    valid_frames = set(range(3, 10)) | {25, 27}
     poses = [_pose(k, 2.0 if k == 25 else 0.0, valid=k in valid_frames) for k in range(40)]
     events = [Event("start", 0), Event("kidnap", 20 * 100 * MS), Event("outage", 30 * 100 * MS)]
     r = twin_metrics(poses, truths, events, end_ns=40 * 100 * MS)
     start, kidnap, outage = r["recoveries"]
     assert start["recovery_s"] == pytest.approx(0.33) and start["first_valid_wrong"] is False
-    assert kidnap["recovery_s"] == pytest.approx(0.53) and kidnap["first_valid_wrong"] is True
+    # A wrong valid pose recovers nothing: timed to the right one, and counted as a wrong first answer.
+    assert kidnap["recovery_s"] == pytest.approx(0.73) and kidnap["first_valid_wrong"] is True
     assert kidnap["first_valid_err_m"] == pytest.approx(2.0)
     # Never valid again: counted with the time it had until the end of the run, as unrecovered.
     assert outage["recovered"] is False and outage["recovery_s"] == pytest.approx(1.0)
-    assert r["recovery_s_mean"] == pytest.approx((0.33 + 0.53 + 1.0) / 3)
+    assert r["recovery_s_mean"] == pytest.approx((0.33 + 0.73 + 1.0) / 3)
     assert r["recovery_s_max"] == pytest.approx(1.0)
     assert r["events_unrecovered"] == 1 and r["recovery_wrong"] == 1
 
