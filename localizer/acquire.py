@@ -10,7 +10,10 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    (refined on its own: on a symmetric court it ties exactly, where the arena differs its cost decides).
    Each hypothesis is then tracked like a track (motion filter); one whose fits stop fitting
    (`drop_lost_frames` frames without a usable fit) or cost more than `tie_ratio` x the best
-   hypothesis's for `tie_drop_frames` frames in a row dies (in between it is no candidate). Hypotheses that
+   hypothesis's for `tie_drop_frames` frames in a row dies (in between it is no candidate). A frame without a
+   usable fit of a hypothesis that odometry carried to it is no loss while the hypothesis is known to
+   `carry_max_std_m` and the frame's hits do not speak against it (`carry_min_explained` of those judged at
+   its pose on paint): bare floor says nothing, and odometry knows where each hypothesis went. Hypotheses that
    converge merge. Beyond `max_hypotheses` those behind the tie, then the unpinned, then the newest are cut
    (`within_cap`); a frame that cut a candidate decides nothing. No hypothesis left: search again. While
    undecided the court is searched again every `research_frames` frames, and on the next frame when the
@@ -42,7 +45,8 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    (`hypotheses.placed_by_marks`).
 3. Confirmation. The decided hypothesis must be the one answer for `confirm_frames` frames in a row
    with a valid fit (`confirm_frames_tight` when a pose prior known to `tight_prior_m` decided: a wrong
-   basin that close to a known pose is what tracking risks anyway); each of those frames searches the
+   basin that close to a known pose is what tracking risks anyway; a frame that only carried it, as in
+   rule 1, neither counts nor breaks the row); each of those frames searches the
    court again, and a frame that an invalid (unpinnable, e.g. only parallel lines) pose explains better
    than every valid one confirms nothing. Nor, for a decision by a prior (or a lone hypothesis), does one
    whose search found nothing within the decided fit's tie: the decision was relative to the hypotheses

@@ -114,6 +114,12 @@ class AcquireConfig(BaseModel):
     merge_m: float = Field(0.3, gt=0, description="hypotheses closer than this (and merge_rad) are one")
     merge_rad: float = Field(0.15, gt=0)
     drop_lost_frames: int = Field(3, ge=1, description="a hypothesis without a usable fit this many frames dies")
+    carry_max_std_m: float = Field(0.25, gt=0, description="a hypothesis odometry carries to the frame loses nothing "
+                                   "by a frame without a usable fit of it (toward drop_lost_frames, or a decision's "
+                                   "confirmation) while its position std is at most this and the view does not speak "
+                                   "against it (carry_min_explained)")
+    carry_min_explained: float = Field(0.5, ge=0, le=1, description="... at least this share of the hits judged at "
+                                       "its pose lie on paint (fusion's min_explained)")
     tie_drop_frames: int = Field(3, ge=1, description="a hypothesis whose fit costs more than the tie of the best "
                                  "(tie_ratio, tie_abs) this many frames in a row dies; until then it decides nothing")
     confirm_frames: int = Field(3, ge=1, description="frames a decided hypothesis must answer valid before the "

@@ -37,7 +37,8 @@ at the frame's time). Vision fixes then correct it exactly as before (gate, fuse
 - **Kidnap.** Vision and odometry disagreeing (a fix that restarts the track far outside the odometry
   prediction's covariance, or `disagree_frames` frames in a row with court lines in view but no fix
   near the prediction) marks every pose invalid (`odometry_disagrees`) and makes the tracker search
-  the whole court, until `recover_fixes` fixes in a row agree again.
+  the whole court, from the frame that raised the suspicion (`fused_track`), until `recover_fixes` fixes in
+  a row agree again.
 """
 from __future__ import annotations
 
