@@ -184,6 +184,7 @@ def markdown_table(report: dict[str, Any]) -> str:
         notes = "".join([f" ({num(r.get('recovery_from_event_s_mean'), '{:.2f}')} / "
                          f"{num(r.get('recovery_from_event_s_max'), '{:.2f}')})",
                          f" ({r['events_unrecovered']} unrecovered)" if r["events_unrecovered"] else "",
+                         f", {r['events_without_view']} without a usable view" if r.get("events_without_view") else "",
                          f", {r['recovery_wrong']} first valid wrong" if r["recovery_wrong"] else ""])
         lines.append(
             f"| {court} | {name} | {r['n']} | {num(r['mean_err_m'], '{:.2f}')} / {num(r['median_err_m'], '{:.3f}')} / "

@@ -171,6 +171,19 @@ def test_bench_twin_runs_the_chain_and_writes_every_key(tmp_path: Path):
     assert f"| {clean['valid_wrong']} |" in row
 
 
+def test_a_table_row_says_how_many_events_had_no_usable_view():
+    """seed-gazebo's kidnaps: no view tells the robot's side, so they have no recovery time, and the row says so."""
+    from courtloc.bench_twin import markdown_table
+
+    poses = [_pose(k, 0.0, valid=k < 10) for k in range(30)]
+    events = [Event("start", 0, view_ns=0), Event("kidnap", 10 * 100 * MS, view_ns=None)]
+    r = twin_metrics(poses, _truths(30), events, end_ns=30 * 100 * MS)
+    row = markdown_table({"run": {"court": "seed-gazebo", "scenarios": ["kidnap"]},
+                          "kidnap": {**r, "fusion": "vision_only"}}).splitlines()[-1]
+    assert row.startswith("| seed-gazebo | kidnap | 30 |")
+    assert row.endswith("(1 unrecovered), 1 without a usable view |")
+
+
 def test_bench_twin_refuses_an_unknown_scenario_in_one_line():
     result = subprocess.run([sys.executable, "-m", "courtloc", "bench", "twin", "--scenario", "clean,rainy"],
                             capture_output=True, text=True, timeout=120)
