@@ -399,7 +399,8 @@ def test_a_lone_fit_elsewhere_keeps_the_odometry_track_and_only_a_run_of_them_is
     """A valid fit the track cannot explain, while odometry carries the track: vision only, the track and the fit
     become two hypotheses (acquisition); fused, the track coasts on odometry, the frame is invalid, and two
     agreeing frames in a row make it valid again. The seed twin's `occluded` run lost its track that way and stayed
-    ambiguous for 20 s. `disagree_frames` such frames in a row are a kidnap: the court is searched."""
+    ambiguous for 20 s. `disagree_frames` such frames in a row are a kidnap: the court is searched, on the frame that
+    made the suspicion."""
     from courtloc.localizer import acquire
     from courtloc.sim.edges import scan_hits
 
@@ -435,7 +436,8 @@ def test_a_lone_fit_elsewhere_keeps_the_odometry_track_and_only_a_run_of_them_is
         assert not fusion.suspect
         answer, after, reason = fused_track(predictor, fusion, seen_moved, 640, 480, after, t)
         assert not answer.valid
-    assert fusion.suspect and fusion.search_pending
+    assert fusion.suspect and not fusion.search_pending and isinstance(after, acquire.Acquiring)
+    assert any(math.hypot(*(h.pose[:2] - moved[:2])) < 0.05 for h in after.hypotheses)  # the moved pose was found
 
 
 def test_after_a_contradiction_odometry_vouches_again_only_after_two_fixes_in_a_row() -> None:
