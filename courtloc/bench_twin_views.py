@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import replace
+from functools import cache
 from typing import Callable, Sequence
 
 import numpy as np
@@ -119,9 +120,10 @@ def with_views(events: list[Event], truths: list[TruthSample], hits_by_capture: 
     out = []
     for event, horizon in in_windows(events, end_ns):
         window = [t for t in frames if event.start_ns <= t.capture_ns < horizon]
-        usable = [judge.usable(hits_by_capture[t.capture_ns], t) for t in window]
+        # Judged when first_view asks (and once): the frames after the view are never fitted.
+        usable = cache(lambda i: judge.usable(hits_by_capture[window[i].capture_ns], window[i]))
         shows = (lambda i: judge.tells_side(marks.get(window[i].capture_ns), window[i])) \
             if event.kind == "kidnap" else None
-        k = first_view(range(len(window)), usable.__getitem__, shows)
+        k = first_view(range(len(window)), usable, shows)
         out.append(replace(event, view_ns=None if k is None else window[k].capture_ns))
     return out

@@ -268,8 +268,7 @@ class GeometricLocalizer:
         (`_regain_rival`), and must be followed by a valid frame; acquisition, which steps its hypotheses here,
         has its own rules for deciding."""
         mcfg = self.config.motion
-        # Odometry hands over a state already at the frame's time; otherwise the constant-velocity model predicts it.
-        constant_velocity = t is None or state.t is None or t > state.t
+        constant_velocity = not motion.at_frame(state, t)
         pred = motion.predict(state, t, mcfg)
         res = self.localize(hits, pred.pose)
         if constant_velocity:
@@ -476,7 +475,7 @@ class GeometricLocalizer:
         usable fit of it: still known to `carry_max_std_m`, and the view does not speak against it (at least
         `carry_min_explained` of the hits judged at its pose lie on paint: `paint_evidence`)."""
         acfg = self.config.acquire
-        if t is None or state.t is None or state.t < t or state.position_std_m > acfg.carry_max_std_m:
+        if not motion.at_frame(state, t) or state.position_std_m > acfg.carry_max_std_m:
             return False
         evidence = self.paint_evidence(hits, state.mean[:3], state.cov[:3, :3])
         return evidence.on_paint >= acfg.carry_min_explained * evidence.judged

@@ -98,6 +98,12 @@ def mirrored(state: MotionState) -> MotionState:
     return MotionState(mean=mean, cov=state.cov * np.outer(flip, flip), t=state.t, lost=state.lost, weak=state.weak)
 
 
+def at_frame(state: MotionState, t: float | None) -> bool:
+    """Whether the state is already at the frame's time t: odometry carried it there (the constant-velocity model
+    predicts only a state from before the frame)."""
+    return t is not None and state.t is not None and state.t >= t
+
+
 def elapsed(state: MotionState, t: float | None, cfg: MotionConfig) -> float:
     if t is None or state.t is None:
         return cfg.frame_period_s
