@@ -271,10 +271,15 @@ class GeometricLocalizer:
         constant_velocity = not motion.at_frame(state, t)
         pred = motion.predict(state, t, mcfg)
         res = self.localize(hits, pred.pose)
+        pinned_fit = res.fit if res.fit.valid else None
         if constant_velocity:
             # Only there: odometry's prediction follows the robot along the lines on its own, and a demoted fit only
             # widened its posterior (robocon2025 twin, occluded, fused through the chain: 97.3 -> 91.0 % valid).
-            res = self._pinned_or_free(hits, res)
+            res = self._pinned_or_free(hits, res, pred.pose)
+        # A valid fit gave way to a clearly better one beside it (`_better_probe`): where the track cannot follow,
+        # that one is a jump as the valid fit would have been (the seed twin's clean walk: a track drifted 0.33 m
+        # is re-found that way).
+        rebased = pinned_fit is not None and res.fit.cost < pinned_fit.cost
         r = motion.measurement_cov(res.fit.covariance, mcfg)
         if (res.valid or res.trackable) and r is not None:
             innov = motion.innovation(pred, res.pose, r)
@@ -308,7 +313,7 @@ class GeometricLocalizer:
                         fused = self._status(fused, "ambiguous")
                         weak = max(pred.weak + 1, mcfg.regain_weak_frames)
                 return TrackStep(fused, replace(new, weak=weak))
-            if res.valid:
+            if res.valid or rebased:
                 # The evidence disagrees with the track: restart the track there, but one frame is not
                 # enough to answer valid from (a single bad fit at a line end jumped 0.4-0.6 m on the
                 # seed recording): the next frame must agree with the restarted track.
@@ -325,19 +330,31 @@ class GeometricLocalizer:
             return self._jump(res, t)
         return TrackStep(self._answer(res, pred.pose, invalid=True), motion.coast(pred, mcfg))
 
-    def _pinned_or_free(self, hits: ProjectedHits, res: LocalizeResult) -> LocalizeResult:
+    def _pinned_or_free(self, hits: ProjectedHits, res: LocalizeResult, predicted: np.ndarray) -> LocalizeResult:
         """`res` when its fit, valid on its own, pins the pose; else the fit as trackable only, its covariance widened
         towards the other place that explains the view as well (`tie_probe_m`). A fit's covariance is the curvature of
         its own basin: in a view of lines along one way it can be that of a few hits near a line's end while a basin
         0.5 m along the lines fits every hit as well (robocon2025 twin, fast walk seen at 15 fps: such fits, 2 cm std,
         held the track at one place while the robot drove on at 2.4 m/s; fused as valid measurements they stopped its
         velocity in three frames and answered 15 valid poses up to 1.9 m off). Free along that way, the fit leaves it
-        to the prediction (and to `regain_weak_frames`)."""
+        to the prediction (and to `regain_weak_frames`).
+
+        A probe that settles within `track_max_jump_m` of the prediction and explains the view clearly better (its
+        cost's tie limit below the fit's cost, with as many inliers) is the frame's fit instead, then judged the same
+        way: `_track` keeps the lowest-cost start, and the probes are starts too (`_better_probe`)."""
         cfg, fit = self.config, res.fit
         if not fit.valid:
             return res
+        probes = self._along_weakest(hits, fit, cfg.tie_probe_m)  # none without a finite covariance
+        better = self._better_probe(fit, probes, predicted)
+        if better is not None:
+            res = self._finish(better, res.mode, predicted)
+            fit = res.fit
+            if not fit.valid:
+                return res
+            probes = self._along_weakest(hits, fit, cfg.tie_probe_m)
         limit = acquire.tie_limit(fit.cost, cfg.acquire)
-        for other in self._along_weakest(hits, fit, cfg.tie_probe_m):  # none without a finite covariance
+        for other in probes:
             offset = np.array([other.pose[0] - fit.pose[0], other.pose[1] - fit.pose[1], 0.0])
             apart = math.hypot(offset[0], offset[1])
             if apart > cfg.acquire.merge_m and other.cost <= limit and other.n_inliers >= _TIE_INLIERS * fit.n_inliers:
@@ -347,6 +364,22 @@ class GeometricLocalizer:
                 return LocalizeResult(pose=res.pose, fit=free, mode=res.mode, alternatives=res.alternatives,
                                       status=res.status)
         return res
+
+    def _better_probe(self, fit: FitResult, probes: list[FitResult], predicted: np.ndarray) -> FitResult | None:
+        """The lowest-cost probe that explains the frame clearly better than `fit` (even its tie limit is below the
+        fit's cost), with at least as many inliers, within `track_max_jump_m` of the prediction; else None.
+        A tracked fit can settle in a worse basin beside the right one: the robocon2025 twin's minus-x walk (vision
+        only, seed 7) fitted 0.26 m off at 10 times the cost of a probe's fit at the truth, the probe was set
+        aside as the same place (closer than `acquire.merge_m`), and four more such frames drifted the track to a
+        valid pose 0.57 m off."""
+        cfg = self.config
+        best: FitResult | None = None
+        for other in probes:
+            if (acquire.tie_limit(other.cost, cfg.acquire) < fit.cost and other.n_inliers >= fit.n_inliers
+                    and math.hypot(*(other.pose[:2] - predicted[:2])) <= cfg.track_max_jump_m
+                    and (best is None or other.cost < best.cost)):
+                best = other
+        return best
 
     def _jump(self, res: LocalizeResult, t: float | None) -> TrackStep:
         """A valid fit the track cannot follow: invalid this frame, the track restarted there (`track` turns it

@@ -350,6 +350,18 @@ def test_a_fit_whose_view_fits_as_well_along_its_lines_does_not_pin_the_track(pr
         assert len(wrong) >= 5 and max(wrong) > 1.0, "without the probes the recorded frames answer valid and wrong"
 
 
+def test_a_tracked_fit_beside_a_clearly_better_basin_gives_way_to_it() -> None:
+    """Recorded robocon2025 frames (tests/data/r25_minus_x_better_probe.json, the sweep's `minus_x_start` walk seed 7,
+    vision only): with the hits thinning from 62 to 11 a frame, the fit from the track's prediction settles 0.26 m
+    off, valid on its own, at ten times the cost of a tie probe's fit at the truth; the probe was set aside as the
+    same place (closer than `merge_m`), and four more such frames drifted the track to a valid pose 0.57 m off. The
+    clearly better probe is the frame's fit: the track stays on the truth."""
+    errors, valid, _ = _replay_recording("r25_minus_x_better_probe.json")
+    assert valid[0], "the track starts right and valid"
+    assert max(e for e, v in zip(errors, valid) if v) <= 0.1
+    assert max(errors) <= 0.1, "the invalid frames' poses stay on the truth too"
+
+
 def test_the_tie_probes_leave_a_state_odometry_carried_to_the_frame_alone() -> None:
     """The same recorded frames, each stepped from the track's state as the constant-velocity model predicts it (the
     state's time before the frame's) and as odometry hands it over (already at the frame's time): the probes demote
