@@ -46,7 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     replay.add_argument("--loop", action="store_true", help="start again at the end, until Ctrl-C")
     replay.add_argument("--only", nargs="+", default=None, metavar="TOPIC", help="replay these topic paths only")
     replay.add_argument("--restamp", action="store_true",
-                        help="move capture times to now so stages treat the frames as fresh (changes bytes)")
+                        help="move capture times to now so stages treat the frames as fresh (changes bytes); at "
+                        "the recorded speed all by one shift, keeping their spacing")
     replay.add_argument("--wait-subscribers", type=nonnegative_float, default=0.0, metavar="S",
                         help="wait up to S seconds for a subscriber before the first message")
     replay.add_argument("--info", action="store_true", help="print the recording's channels and exit")

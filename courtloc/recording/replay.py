@@ -3,7 +3,10 @@
 The msgpack channels hold the exact payloads, so by default replay is bit-exact. Two options change
 the bytes on purpose: `--robot` (another robot id: stages drop messages addressed to another robot)
 and `--restamp` (capture times moved to now, so freshness checks downstream treat the replayed
-frames as live rather than stale).
+frames as live rather than stale). At the recorded speed every stamp moves by the same amount, set by the first
+message (it arrives as old as it was when recorded): the stamps keep their recorded spacing and each message its
+recorded age, so a stage that integrates over time (the infer stage's motion filter) sees the live run's time steps,
+not the replay's wake-up jitter. At another speed each message is stamped as captured when it is sent.
 """
 from __future__ import annotations
 
@@ -49,8 +52,23 @@ class ReplayStats:
                 "late_ms_max": round(self.late_ms_max, 3)}
 
 
-def rewrite(record: Recorded, robot_id: str | None, restamp: bool) -> bytes:
-    """The payload with another robot id and/or its capture time moved to now."""
+def restamp_shift(record: Recorded) -> tuple[int, int] | None:
+    """(monotonic, wall) nanoseconds that move this record's capture stamps so it arrives now as old as it was
+    when recorded (its log time); None for a message without a header or one that does not decode."""
+    try:
+        message = codec.decode(record.data, TOPICS[record.path].message)
+    except codec.DecodeError:
+        return None
+    header = getattr(message, "header", None)
+    if header is None:
+        return None
+    recorded_age = record.log_time - header.capture_wall_ns
+    return (time.monotonic_ns() - header.capture_mono_ns - recorded_age, time.time_ns() - record.log_time)
+
+
+def rewrite(record: Recorded, robot_id: str | None, restamp: bool, shift: tuple[int, int] | None = None) -> bytes:
+    """The payload with another robot id and/or its capture time moved: by `shift` ((monotonic, wall) ns, from
+    `restamp_shift`), or without one to now."""
     message_type = TOPICS[record.path].message
     message = codec.decode(record.data, message_type)
     if isinstance(message, Health):
@@ -67,8 +85,11 @@ def rewrite(record: Recorded, robot_id: str | None, restamp: bool) -> bytes:
     if restamp:
         # Wall and monotonic clocks are shifted together: the header's spans (stage latencies) stay
         # as recorded; only the age seen downstream becomes "just captured".
-        mono_shift = time.monotonic_ns() - header.capture_mono_ns
-        wall_shift = time.time_ns() - header.capture_wall_ns
+        if shift is not None:
+            mono_shift, wall_shift = shift
+        else:
+            mono_shift = time.monotonic_ns() - header.capture_mono_ns
+            wall_shift = time.time_ns() - header.capture_wall_ns
         header_update["capture_mono_ns"] = header.capture_mono_ns + mono_shift
         header_update["capture_wall_ns"] = header.capture_wall_ns + wall_shift
         header_update["stamps"] = [s.model_copy(update={"mono_ns": s.mono_ns + mono_shift,
@@ -142,6 +163,8 @@ class Replayer:
         opts = self.options
         start_wall: float | None = None
         first_log = 0
+        # At the recorded speed one shift for the whole pass (module docstring), set by the first stamped message.
+        shift: tuple[int, int] | None = None
         for record in read_series(self.files, only=opts.only):
             if start_wall is None:
                 start_wall, first_log = time.monotonic(), record.log_time
@@ -155,8 +178,11 @@ class Replayer:
             payload = record.data
             robot_changes = opts.robot_id is not None and opts.robot_id != record.robot_id
             if robot_changes or opts.restamp:
+                if opts.restamp and opts.speed == 1.0 and shift is None:
+                    shift = restamp_shift(record)
                 try:
-                    payload = rewrite(record, opts.robot_id if robot_changes else None, opts.restamp)
+                    payload = rewrite(record, opts.robot_id if robot_changes else None, opts.restamp,
+                                      shift if opts.speed == 1.0 else None)
                 except codec.DecodeError:
                     # A payload that never decoded cannot be readdressed or restamped.
                     self.stats.undecodable_skipped += 1
