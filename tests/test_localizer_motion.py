@@ -362,6 +362,20 @@ def test_a_tracked_fit_beside_a_clearly_better_basin_gives_way_to_it() -> None:
     assert max(errors) <= 0.1, "the invalid frames' poses stay on the truth too"
 
 
+def test_a_better_basin_the_drifted_track_cannot_follow_is_a_jump() -> None:
+    """Recorded seed-gazebo frames (tests/data/seed_drifted_rebased_jump.json, the sweep's `clean` walk seed 3, vision
+    only): a track that coasted 18 frames on trackable fits is 0.25 m off. The next frame's fit from its prediction is
+    valid on its own 0.22 m from the truth, and a probe beside it fits the truth's basin at a third of its cost. The
+    probe is the frame's fit; too far for the track to follow, it is a jump, as the valid fit was: the acquisition
+    after it confirms the truth and the pose is valid and right within 0.15 s. Merely gated, the better fit (not valid
+    on its own) let the track coast on: 0.8 m off, then lost, and ambiguous for seconds."""
+    errors, valid, frames = _replay_recording("seed_drifted_rebased_jump.json")
+    assert not [e for e, v in zip(errors, valid) if v and e > 0.5]
+    back = [f["t"] for f, v in zip(frames, valid) if v]
+    assert back and back[0] - frames[0]["t"] <= 0.15, back[:1]
+    assert max(errors[frames.index(next(f for f in frames if f["t"] == back[0])):]) <= 0.1
+
+
 def test_the_tie_probes_leave_a_state_odometry_carried_to_the_frame_alone() -> None:
     """The same recorded frames, each stepped from the track's state as the constant-velocity model predicts it (the
     state's time before the frame's) and as odometry hands it over (already at the frame's time): the probes demote
