@@ -28,6 +28,7 @@ import os
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
+from functools import cache
 from typing import Any, Callable
 
 import numpy as np
@@ -171,18 +172,14 @@ class UsableViews:
 
     def __init__(self, walk: Walk, judge: ViewJudge) -> None:
         self.walk, self.judge = walk, judge
-        self._known: dict[int, bool] = {}
-        self._sided: dict[int, bool] = {}
+        self._usable = cache(lambda i: judge.usable(walk.hits[i], self._truth(i)))
+        self._shows_side = cache(lambda i: judge.tells_side(walk.marks[i], self._truth(i)))
 
     def __call__(self, i: int) -> bool:
-        if i not in self._known:
-            self._known[i] = self.judge.usable(self.walk.hits[i], self._truth(i))
-        return self._known[i]
+        return self._usable(i)
 
     def shows_side(self, i: int) -> bool:
-        if i not in self._sided:
-            self._sided[i] = self.judge.tells_side(self.walk.marks[i], self._truth(i))
-        return self._sided[i]
+        return self._shows_side(i)
 
     def _truth(self, i: int) -> TruthSample:
         x, y, yaw = self.walk.truth[i]

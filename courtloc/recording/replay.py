@@ -21,7 +21,7 @@ import zenoh
 
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, declare_publisher, open_session
-from courtloc.common.messages import Health
+from courtloc.common.messages import Header, Health
 from courtloc.common.services_table import TOPICS
 from courtloc.recording.mcapfile import Recorded, read_series, recorded_channels
 
@@ -52,9 +52,14 @@ class ReplayStats:
                 "late_ms_max": round(self.late_ms_max, 3)}
 
 
+def _shift_to_now(header: Header, age_ns: int) -> tuple[int, int]:
+    """(monotonic, wall) nanoseconds that move `header`'s capture stamps so that it is `age_ns` old now."""
+    return (time.monotonic_ns() - header.capture_mono_ns - age_ns, time.time_ns() - header.capture_wall_ns - age_ns)
+
+
 def restamp_shift(record: Recorded) -> tuple[int, int] | None:
-    """(monotonic, wall) nanoseconds that move this record's capture stamps so it arrives now as old as it was
-    when recorded (its log time); None for a message without a header or one that does not decode."""
+    """The shift that makes this record arrive now as old as it was when recorded (its log time); None for a
+    message without a header or one that does not decode."""
     try:
         message = codec.decode(record.data, TOPICS[record.path].message)
     except codec.DecodeError:
@@ -62,8 +67,7 @@ def restamp_shift(record: Recorded) -> tuple[int, int] | None:
     header = getattr(message, "header", None)
     if header is None:
         return None
-    recorded_age = record.log_time - header.capture_wall_ns
-    return (time.monotonic_ns() - header.capture_mono_ns - recorded_age, time.time_ns() - record.log_time)
+    return _shift_to_now(header, record.log_time - header.capture_wall_ns)
 
 
 def rewrite(record: Recorded, robot_id: str | None, restamp: bool, shift: tuple[int, int] | None = None) -> bytes:
@@ -83,13 +87,9 @@ def rewrite(record: Recorded, robot_id: str | None, restamp: bool, shift: tuple[
     if robot_id is not None:
         header_update["robot_id"] = robot_id
     if restamp:
-        # Wall and monotonic clocks are shifted together: the header's spans (stage latencies) stay
-        # as recorded; only the age seen downstream becomes "just captured".
-        if shift is not None:
-            mono_shift, wall_shift = shift
-        else:
-            mono_shift = time.monotonic_ns() - header.capture_mono_ns
-            wall_shift = time.time_ns() - header.capture_wall_ns
+        # Every stamp of the header moves by the same shift: its spans (stage latencies) stay as recorded, only
+        # its age downstream changes (to `shift`'s, or "just captured").
+        mono_shift, wall_shift = shift if shift is not None else _shift_to_now(header, 0)
         header_update["capture_mono_ns"] = header.capture_mono_ns + mono_shift
         header_update["capture_wall_ns"] = header.capture_wall_ns + wall_shift
         header_update["stamps"] = [s.model_copy(update={"mono_ns": s.mono_ns + mono_shift,
