@@ -498,3 +498,101 @@ def test_the_acquisitions_hypotheses_move_with_the_odometry(robocon2025_twin) ->
         nearest = min(poses, key=lambda p: math.hypot(*(p[:2] - expected[:2])))
         assert math.hypot(*(nearest[:2] - expected[:2])) < 0.02, (nearest, expected)
         assert abs(math.remainder(nearest[2] - expected[2], 2 * math.pi)) < math.radians(0.5)
+
+
+def test_a_fit_elsewhere_in_a_view_the_prediction_explains_is_a_misread_not_a_doubt() -> None:
+    """Recorded seed-gazebo frame (tests/data/seed_occluded_explained_jump.json, the sweep's fused `occluded` walk
+    seed 1): odometry carried the track to 7 mm from the truth, and an occluder's edges pulled the fit from there
+    to a valid one 0.46 m away (a jump). 79 of the 83 hits lie on paint at odometry's pose: the view agrees with it,
+    so the frame is invalid (a valid fit says otherwise) but the track is not put in doubt, and the next fix is
+    valid. Demanding every hit on paint (`explained_share` 1) doubts it as before: the next fix would not be."""
+    import json
+    from pathlib import Path
+
+    from courtloc.localizer.package import bundled_package
+    from courtloc.localizer.predictor import load_predictor
+
+    data = json.loads((Path(__file__).parent / "data" / "seed_occluded_explained_jump.json").read_text())
+    predictor = load_predictor(bundled_package(data["court"], data["court"]))
+    frame = data["frame"]
+    hits = np.array(frame["hits"], np.int16).reshape(-1, 4)
+    marks = np.array(frame["marks"], np.int16).reshape(-1, 3)
+    truth = np.array(frame["truth"])
+    width, height = data["size"]
+    mean, cov = np.array(data["before"]["mean"]), np.array(data["before"]["cov"])
+
+    def held_against(config: FusionConfig) -> OdometryFusion:
+        fusion = OdometryFusion(config)
+        for i in range(30):  # standing still: the odometry predicts the recorded track's pose
+            fusion.offer(odometry(i * 0.01, 0.0, seq=i), i * 0.01)
+        fusion.last_fix = (0.1, mean[:3])
+        state = motion.MotionState(mean=mean, cov=cov, t=0.1)
+        answer, after, reason = fused_track(predictor, fusion, hits, width, height, state, 0.2, marks)
+        assert not answer.valid and reason == "odometry_unconfirmed"
+        assert math.hypot(answer.x - truth[0], answer.y - truth[1]) < 0.02  # odometry's pose, not the fit's
+        assert isinstance(after, motion.MotionState) and not fusion.suspect
+        return fusion
+
+    fusion = held_against(FusionConfig(enabled=True))
+    assert fusion.counts["jump_explained"] == 1 and not fusion.doubt
+    strict = held_against(FusionConfig(enabled=True, explained_share=1.0))
+    assert strict.counts["jump_explained"] == 0 and strict.doubt
+
+
+def test_lines_where_the_prediction_has_paint_are_bridged_and_end_a_run_of_disagreement() -> None:
+    """A frame with lines in view but no fix is bridged on odometry when its hits lie on paint at the prediction
+    (`explained`), as a blind frame is, and ends a run of disagreeing frames as a fix does; in doubt it is not
+    bridged either."""
+    fusion = OdometryFusion(FusionConfig(enabled=True))
+    for i in range(80):  # driving straight along +x at 1 m/s, 100 Hz
+        fusion.offer(odometry(i * 0.01, i * 0.01, seq=i), i * 0.01)
+    state = motion.MotionState(mean=np.zeros(6), cov=np.eye(6) * 1e-4, t=0.1)
+    assert fusion.after_frame(True, True, state, 0.1, n_hits=60) == (True, "")
+    t = 0.1
+
+    def frame(explained: bool = False, contradicted: bool = False, n_hits: int = 60) -> tuple[bool, str]:
+        nonlocal t, state
+        before = state
+        t = round(t + 0.05, 2)
+        state = fusion.before_frame(before, t)
+        fusion.note_vision(state, state, n_hits, False, contradicted, explained)
+        return fusion.after_frame(False, False, state, t, n_hits, contradicted, explained=explained)
+
+    assert frame() == (False, "odometry_unconfirmed")  # lines in view, no fix: one of them is wrong
+    assert frame(explained=True) == (True, "")  # the lines are where odometry has paint
+    assert fusion.counts["valid_explained"] == 1 and fusion.counts["no_fix_in_view"] == 1
+    for _ in range(fusion.config.disagree_frames - 1):
+        assert frame() == (False, "odometry_unconfirmed")
+    assert not fusion.suspect  # the explained frame ended the first run
+    assert frame(explained=True) == (True, "")
+    assert frame(n_hits=14, contradicted=True) == (False, "odometry_unconfirmed")
+    assert frame(explained=True) == (False, "odometry_unconfirmed")  # in doubt: not bridged
+    assert fusion.counts["blind_in_doubt"] == 1
+
+
+def test_a_fix_in_doubt_ends_a_run_of_disagreeing_frames() -> None:
+    """A run of disagreement is frames in a row without a fix near the prediction: a fix that cannot vouch yet (in
+    doubt) still ends it. On the seed twin's occluded walk at 25 % dropped frames a contradicted frame, such a fix
+    and one unexplained frame made a kidnap suspicion, and the point-symmetric court kept the search ambiguous for
+    the remaining 20 s."""
+    fusion = OdometryFusion(FusionConfig(enabled=True))
+    for i in range(80):
+        fusion.offer(odometry(i * 0.01, i * 0.01, seq=i), i * 0.01)
+    state = motion.MotionState(mean=np.zeros(6), cov=np.eye(6) * 1e-4, t=0.1)
+    assert fusion.after_frame(True, True, state, 0.1, n_hits=60) == (True, "")
+    t = 0.1
+
+    def frame(fix: bool = False, contradicted: bool = False) -> tuple[bool, str]:
+        nonlocal t, state
+        t = round(t + 0.05, 2)
+        state = fusion.before_frame(state, t)
+        n_hits = 14 if contradicted else 60
+        fusion.note_vision(state, state, n_hits, fix, contradicted)
+        return fusion.after_frame(fix, fix, state, t, n_hits, contradicted)
+
+    assert frame(contradicted=True) == (False, "odometry_unconfirmed")
+    assert frame(fix=True) == (False, "odometry_unconfirmed") and fusion.counts["fix_in_doubt"] == 1
+    for _ in range(fusion.config.disagree_frames - 1):
+        assert frame() == (False, "odometry_unconfirmed")
+        assert not fusion.suspect
+    assert frame() == (False, "odometry_disagrees") and fusion.suspect  # a full run after the fix is one
