@@ -440,15 +440,22 @@ def test_a_lone_fit_elsewhere_keeps_the_odometry_track_and_only_a_run_of_them_is
     assert any(math.hypot(*(h.pose[:2] - moved[:2])) < 0.05 for h in after.hypotheses)  # the moved pose was found
 
 
+def driving_after_a_fix() -> tuple[OdometryFusion, motion.MotionState]:
+    """A fusion whose odometry drives straight along +x at 1 m/s (100 Hz), and the track at the origin at 0.1 s,
+    just fixed by vision."""
+    fusion = OdometryFusion(FusionConfig(enabled=True))
+    for i in range(80):
+        fusion.offer(odometry(i * 0.01, i * 0.01, seq=i), i * 0.01)
+    state = motion.MotionState(mean=np.zeros(6), cov=np.eye(6) * 1e-4, t=0.1)
+    assert fusion.after_frame(True, True, state, 0.1, n_hits=60) == (True, "")
+    return fusion, state
+
+
 def test_after_a_contradiction_odometry_vouches_again_only_after_two_fixes_in_a_row() -> None:
     """A frame the prediction cannot explain puts the track in doubt: blind frames are not bridged and a lone fix
     is not valid either (after a kidnap on the robocon2025 twin's loop a view from 1.9 m away also fitted near the
     old place once, and the blind frames after it were valid on odometry 1.7-2.0 m off); two fixes in a row end it."""
-    fusion = OdometryFusion(FusionConfig(enabled=True))
-    for i in range(80):  # driving straight along +x at 1 m/s, 100 Hz
-        fusion.offer(odometry(i * 0.01, i * 0.01, seq=i), i * 0.01)
-    state = motion.MotionState(mean=np.zeros(6), cov=np.eye(6) * 1e-4, t=0.1)
-    assert fusion.after_frame(True, True, state, 0.1, n_hits=60) == (True, "")
+    fusion, state = driving_after_a_fix()
     t = 0.1
 
     def frame(**kw) -> tuple[bool, str]:  # noqa: ANN003
@@ -543,11 +550,7 @@ def test_lines_where_the_prediction_has_paint_are_bridged_and_end_a_run_of_disag
     """A frame with lines in view but no fix is bridged on odometry when its hits lie on paint at the prediction
     (`explained`), as a blind frame is, and ends a run of disagreeing frames as a fix does; in doubt it is not
     bridged either."""
-    fusion = OdometryFusion(FusionConfig(enabled=True))
-    for i in range(80):  # driving straight along +x at 1 m/s, 100 Hz
-        fusion.offer(odometry(i * 0.01, i * 0.01, seq=i), i * 0.01)
-    state = motion.MotionState(mean=np.zeros(6), cov=np.eye(6) * 1e-4, t=0.1)
-    assert fusion.after_frame(True, True, state, 0.1, n_hits=60) == (True, "")
+    fusion, state = driving_after_a_fix()
     t = 0.1
 
     def frame(explained: bool = False, contradicted: bool = False, n_hits: int = 60) -> tuple[bool, str]:
@@ -575,11 +578,7 @@ def test_a_fix_in_doubt_ends_a_run_of_disagreeing_frames() -> None:
     doubt) still ends it. On the seed twin's occluded walk at 25 % dropped frames a contradicted frame, such a fix
     and one unexplained frame made a kidnap suspicion, and the point-symmetric court kept the search ambiguous for
     the remaining 20 s."""
-    fusion = OdometryFusion(FusionConfig(enabled=True))
-    for i in range(80):
-        fusion.offer(odometry(i * 0.01, i * 0.01, seq=i), i * 0.01)
-    state = motion.MotionState(mean=np.zeros(6), cov=np.eye(6) * 1e-4, t=0.1)
-    assert fusion.after_frame(True, True, state, 0.1, n_hits=60) == (True, "")
+    fusion, state = driving_after_a_fix()
     t = 0.1
 
     def frame(fix: bool = False, contradicted: bool = False) -> tuple[bool, str]:
