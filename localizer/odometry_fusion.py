@@ -383,12 +383,13 @@ class OdometryFusion:
         Returns (valid, reason): the frame's validity after fusion and, when odometry decided, why."""
         if t is None or state is None:
             return valid, ""
-        if valid and fused_by_vision and self.doubt and not self.suspect:
-            # A fix near the prediction ends a run of disagreeing frames even while it cannot vouch yet: a run is
-            # frames in a row without one (the seed twin's occluded walk at 25 % dropped frames: a contradicted frame,
-            # this fix, one unexplained frame made a kidnap suspicion, and the point-symmetric court kept the search
-            # ambiguous for the remaining 20 s).
+        if valid and fused_by_vision:
+            # A fix near the prediction ends a run of disagreeing frames, also one that cannot vouch yet (in doubt): a
+            # run is frames in a row without one (the seed twin's occluded walk at 25 % dropped frames: a contradicted
+            # frame, a fix in doubt, one unexplained frame made a kidnap suspicion, and the point-symmetric court kept
+            # the search ambiguous for the remaining 20 s).
             self._disagreeing = 0
+        if valid and fused_by_vision and self.doubt and not self.suspect:
             self._doubt_fixes += 1
             if self._doubt_fixes < self.config.doubt_fixes:
                 self.last_fix = (t, state.pose)
@@ -396,7 +397,6 @@ class OdometryFusion:
                 return False, "odometry_unconfirmed"
             self.doubt = False
         if valid and fused_by_vision:
-            self._disagreeing = 0
             if self.suspect:
                 self._agreeing += 1
                 if self._agreeing < self.config.recover_fixes:
