@@ -433,3 +433,18 @@ def test_a_kidnapped_robots_view_explained_near_its_old_place_is_not_decided_the
     wrong = [(round(f["t"] - frames[0]["t"], 3), round(e, 2))
              for f, e, v in zip(frames, errors, valid) if v and e > 0.5]
     assert not wrong, wrong
+
+
+def test_a_decision_being_confirmed_outlasts_near_ties_seen_for_one_frame() -> None:
+    """Recorded robocon2025 frames (tests/data/r25_kidnap_marks_held.json, the sweep's `kidnap` walk seed 1, vision
+    only): the tracked robot loses its track and is teleported at 10 s. From 10.4 s one hypothesis and its twin are
+    tracked, the colour marks for the first (about 1,000) and against the twin, and the marks decide; every confirming
+    frame searches the court again, and again and again the search proposed a near-tie that the next frame dropped,
+    each time restarting the five confirming frames: valid again 2.4 s after the teleport. A hypothesis first seen in
+    the frame holds the confirmation (neither counts nor undoes it): valid again 1.8 s after it, and right."""
+    errors, valid, frames = _replay_recording("r25_kidnap_marks_held.json")
+    kidnap = 10.0
+    assert errors[0] < 0.1, "the track starts right"
+    back = next(f["t"] for f, v in zip(frames, valid) if f["t"] >= kidnap and v)
+    assert back - kidnap <= 2.0, back
+    assert not [(f["t"], round(e, 2)) for f, e, v in zip(frames, errors, valid) if v and e > 0.5]
