@@ -51,7 +51,9 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    than every valid one confirms nothing. Nor, for a decision by a prior (or a lone hypothesis), does one
    whose search found nothing within the decided fit's tie: the decision was relative to the hypotheses
    found, and a search blind to this view cannot have found the decided one's rivals (a decision by colour
-   marks judges the hypothesis itself, after it moved). Then the track starts there and the
+   marks judges the hypothesis itself, after it moved). A frame in which only hypotheses first seen in it stand
+   in the way of the decision (those tracked before it would still make it) neither counts nor undoes it
+   (`GeometricLocalizer._held_decision`): they have no evidence yet. Then the track starts there and the
    frame is valid. Until then every frame is
    invalid with reason `ambiguous` (several hypotheses) or `searching` (none yet).
 Pure functions of the state the caller passes in, like motion.py.

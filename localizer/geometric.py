@@ -468,7 +468,7 @@ class GeometricLocalizer:
             # Only hypotheses first seen this frame stand in the way of the decision being confirmed: they have no
             # evidence yet, so the frame neither confirms nor undoes it; the next frame judges them with a frame
             # of evidence (still tying, they block it then). The robocon2025 twin's kidnaps, vision only: a marks
-            # decision, its hypothesis tracked 35 frames with 988 marks for it, was restarted six times in 1.3 s
+            # decision, its hypothesis tracked 35 frames with 988 marks for it, was restarted seven times in 1.3 s
             # by near-ties a confirming frame's search proposed and the next frame dropped.
             res = self._answer(live[held][0], poses[held], invalid=True)
             res = LocalizeResult(pose=res.pose, fit=res.fit, mode=res.mode, status="ambiguous",
