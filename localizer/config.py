@@ -129,6 +129,8 @@ class AcquireConfig(BaseModel):
                                        "hypotheses metres away: the view must change before one is trusted)")
     confirm_frames_marks: int = Field(5, ge=1, description="... when colour marks alone decided (the hypothesis "
                                       "has already moved marks_motion_m or turned marks_turn_deg since first seen)")
+    confirm_frames_marks_carried: int = Field(4, ge=1, description="... and when odometry carried the hypotheses to "
+                                              "the frame (the wheels vouch for the motion between its frames)")
     tight_prior_m: float = Field(1.0, gt=0, description="a pose prior this well known (std, grown by its age) is "
                                  "tight")
     research_frames: int = Field(15, ge=1, description="while undecided, search the court again this often (and "

@@ -20,6 +20,8 @@ from courtloc.localizer.predictor import load_predictor
 from courtloc.localizer.tracking import Tracker
 
 DATA = Path(__file__).parent / "data" / "r25_kidnap_blind_after_marks.json"
+# The same walk at 15 fps (the sweep's `half` timing), 8.8-12.0 s.
+DATA_HALF = Path(__file__).parent / "data" / "r25_kidnap_marks_carried.json"
 
 
 def _rows(text: str, columns: int) -> np.ndarray:
@@ -28,12 +30,22 @@ def _rows(text: str, columns: int) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def replay():  # noqa: ANN201
+    return _load(DATA)
+
+
+@pytest.fixture(scope="module")
+def replay_half():  # noqa: ANN201
+    return _load(DATA_HALF)
+
+
+def _load(path: Path):  # noqa: ANN202
+    """The recorded frames, the odometry made again from seed 3's scenario, and the court's bundled predictor."""
     from courtloc import bench_sweep
     from courtloc.bench_twin import build_scenarios
     from courtloc.sim.odometry import OdometrySimConfig, OdometrySimulator
     from courtloc.sim.source import SimSource
 
-    data = json.loads(DATA.read_text())
+    data = json.loads(path.read_text())
     parser = argparse.ArgumentParser()
     bench_sweep.add_arguments(parser)
     args = parser.parse_args(["--court", "robocon2025", "--scenario", "kidnap"])
@@ -86,3 +98,16 @@ def test_the_frame_that_raises_the_kidnap_suspicion_is_searched_itself(replay) -
     raised = next(i for i, row in enumerate(rows) if row[4] > 0)
     assert isinstance(rows[raised][3], acquire.Acquiring)
     assert not rows[raised][1]
+
+
+def test_a_marks_decision_that_odometry_carries_needs_a_frame_less(replay_half) -> None:  # noqa: ANN001
+    """At 15 fps the marks decide at 10.6 s and the fourth confirming frame is at 10.87 s; then the view is bare floor
+    for 4 s, which holds the confirmation but cannot complete it: with five frames needed the fifth came at 15.3 s (the
+    sweep's slowest fused recovery, 5.3 s). With odometry carrying the hypotheses four frames confirm a marks decision:
+    valid and right 0.9 s after the teleport."""
+    rows = _run(replay_half)
+    kidnap = replay_half[0]["kidnaps_s"][0]
+    assert all(error <= 0.5 for _, valid, error, _, _ in rows if valid)
+    assert any(valid for t, valid, _, _, _ in rows if t < kidnap)
+    back = [t for t, valid, _, _, _ in rows if valid and t >= kidnap]
+    assert back and back[0] < kidnap + 1.5, back[:1]
