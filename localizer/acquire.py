@@ -278,7 +278,7 @@ def decide(hypotheses: list[Hypothesis], prior: Prior | None, half: Half | None,
     colour marks; a hypothesis they contradict is never the robot, and without a prior a lone hypothesis
     is decided only when they speak for it (on a point-symmetric court its twin is then contradicted) and
     it has moved `marks_motion_m` or turned `marks_turn_deg` since it was first seen, confirmed over
-    `confirm_frames_marks` frames."""
+    `confirm_frames_marks` frames (`confirm_frames_marks_carried` when odometry carries the hypotheses)."""
     poses = [h.pose for h in hypotheses]
     # One fitting clearly worse than the best this frame (`frames_behind`) is not a candidate until it fits again.
     keep = [i for i in range(len(poses))
