@@ -1,7 +1,8 @@
 """A fused kidnap replayed (robocon2025 twin, `bench sweep` walk `kidnap` seed 3, every frame): the robot is
 teleported at 10.0 s into a view of the key and the colour strip, sees it for about 0.2 s, then faces nearly bare
 floor (0-48 hits a frame) for 5 s. The frames are the sweep's (tests/data/r25_kidnap_blind_after_marks.json); the
-odometry is made again from the same scenario, as the sweep makes it (the teleport is not felt)."""
+odometry is made again from the same scenario, as the sweep makes it (the teleport is not felt). The same walk at the
+sweep's `half` timing (15 fps, tests/data/r25_kidnap_marks_carried.json) for the confirmation of a marks decision."""
 from __future__ import annotations
 
 import argparse
