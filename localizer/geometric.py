@@ -472,16 +472,12 @@ class GeometricLocalizer:
             # of evidence (still tying, they block it then). The robocon2025 twin's kidnaps, vision only: a marks
             # decision, its hypothesis tracked 35 frames with 988 marks for it, was restarted seven times in 1.3 s
             # by near-ties a confirming frame's search proposed and the next frame dropped.
-            res = self._answer(live[held][0], poses[held], invalid=True)
-            res = LocalizeResult(pose=res.pose, fit=res.fit, mode=res.mode, status="ambiguous",
-                                 alternatives=[p for i, p in enumerate(poses) if i != held])
+            res = self._pending(live[held][0], poses, held, "ambiguous")
             return TrackStep(res, acquire.Acquiring(prior, hypotheses, state.agreed, since, decided_pose=poses[held],
                                                     decided_t=state.decided_t, unexplained=unexplained))
         if decision.index is None:
             best = self._nearest(list(hypotheses), prior, t)
-            res = self._answer(live[best][0], poses[best], invalid=True)
-            res = LocalizeResult(pose=res.pose, fit=res.fit, mode=res.mode, status="ambiguous",
-                                 alternatives=[p for i, p in enumerate(poses) if i != best])
+            res = self._pending(live[best][0], poses, best, "ambiguous")
             return TrackStep(res, acquire.Acquiring(prior, hypotheses, 0, since, unexplained=unexplained))
         res, chosen = live[decision.index]
         same = state.decided_pose is not None and _same_decision(state.decided_pose, chosen.pose)
@@ -509,16 +505,21 @@ class GeometricLocalizer:
         # A marks decision on hypotheses odometry carries needs a frame less: the wheels tie its frames together (the
         # robocon2025 twin's kidnaps, fused: four confirming frames, then 4 s of bare floor before the fifth; the same
         # frame less without odometry confirmed a wrong start 5 m off in an occluded walk).
-        needed = ((acfg.confirm_frames_marks_carried if carried else acfg.confirm_frames_marks) if decision.marks else
+        marks_frames = acfg.confirm_frames_marks_carried if carried else acfg.confirm_frames_marks
+        needed = (marks_frames if decision.marks else
                   acfg.confirm_frames_kidnap if decision.kidnap else
                   acfg.confirm_frames_tight if decision.tight else acfg.confirm_frames)
         if agreed >= needed and chosen.state.lost == 0 and res.valid:
             return TrackStep(LocalizeResult(pose=res.pose, fit=res.fit, mode="acquired"), chosen.state)
-        others = [p for i, p in enumerate(poses) if i != decision.index]
-        res = self._answer(res, chosen.pose, invalid=True)
-        res = LocalizeResult(pose=res.pose, fit=res.fit, mode=res.mode, alternatives=others, status="confirming")
+        res = self._pending(res, poses, decision.index, "confirming")
         return TrackStep(res, acquire.Acquiring(prior, hypotheses, agreed, since, decided_pose=chosen.pose,
                                                 decided_t=t_eval if agreed > 1 else t, unexplained=unexplained))
+
+    def _pending(self, res: LocalizeResult, poses: list[np.ndarray], index: int, status: str) -> LocalizeResult:
+        """An acquiring frame's answer (invalid, with `status`): hypothesis `index`'s pose, the others alternatives."""
+        answer = self._answer(res, poses[index], invalid=True)
+        return LocalizeResult(pose=answer.pose, fit=answer.fit, mode=answer.mode, status=status,
+                              alternatives=[p for i, p in enumerate(poses) if i != index])
 
     def _held_decision(self, state: acquire.Acquiring, hypotheses: list[acquire.Hypothesis],
                        prior: acquire.Prior | None, half: Half | None, t: float | None) -> int | None:
