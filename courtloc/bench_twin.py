@@ -30,6 +30,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
+from courtloc.bench_twin_frames import KeptFrame, KeptRun, write_kept
 from courtloc.bench_twin_metrics import (
     Event,
     PoseSample,
@@ -87,6 +88,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--infer", action="append", default=[], metavar="FIELD=VALUE",
                         help="set an [infer] field for every scenario (VALUE is JSON, or a plain string)")
     parser.add_argument("--logs", type=Path, default=None, help="keep the stages' logs here (default: discarded)")
+    parser.add_argument("--keep-frames", type=Path, default=None, metavar="DIR",
+                        help="keep each run's frames the infer stage answered (stamps, hits, marks, truth, pose) in "
+                             "DIR/<scenario>[_fused].json, to replay the run in one process (bench_twin_frames.py)")
     parser.add_argument("--markdown", type=Path, default=None,
                         help="also write the README's table rows for this run here (header included)")
     parser.add_argument("--fusion", choices=("auto", "off", "on", "both"), default="auto",
@@ -313,6 +317,8 @@ class _Record:
     poses: list = field(default_factory=list)
     hits: dict = field(default_factory=dict)  # capture stamp -> the frame's edge hits (usable views)
     marks: dict = field(default_factory=dict)  # capture stamp -> the frame's colour marks (a kidnap's view: the side)
+    walls: dict = field(default_factory=dict)  # capture stamp -> the frame's wall-clock capture time
+    size: tuple[int, int] = (0, 0)  # the frames' width and height
     last_seq: int = -1
     undecodable: int = 0
 
@@ -354,6 +360,8 @@ class TwinRecorder(BusWatcher):
                 if isinstance(message, Edges):
                     self.record.hits[message.header.capture_mono_ns] = edges_hits(message)
                     self.record.marks[message.header.capture_mono_ns] = edges_marks(message)
+                    self.record.walls[message.header.capture_mono_ns] = message.header.capture_wall_ns
+                    self.record.size = (message.width, message.height)
                     continue
             except (codec.DecodeError, ValueError):
                 self.record.undecodable += 1
@@ -442,7 +450,11 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any],  # 
     poses = [p for p in recorder.record.poses if p.capture_ns <= end_ns]
     events = scenario_events(sc, truths, poses, args.fps, kill_ns, real_time=fused)
     court = load_court(sc.sim.court)
-    judge = view_judge(court.name, load_camera(config.camera.sim.get("camera") or court.default_camera).name)
+    camera = load_camera(config.camera.sim.get("camera") or court.default_camera).name
+    if args.keep_frames is not None:
+        write_kept(args.keep_frames / f"{sc.name}{'_fused' if fused else ''}.json",
+                   kept_run(sc.name, court.name, camera, fused, config, recorder.record, truths, poses))
+    judge = view_judge(court.name, camera)
     events = with_views(events, truths, recorder.record.hits, judge, end_ns, recorder.record.marks)
     result = twin_metrics(poses, truths, events, end_ns)
     first = min((t.capture_ns for t in truths), default=0)
@@ -470,6 +482,21 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any],  # 
                   stale_or_dropped={name: {"dropped": s["dropped"], "stale": s["stale"]}
                                     for name, s in summary["stages"].items()})
     return result
+
+
+def kept_run(name: str, court: str, camera: str, fused: bool, config: DeploymentConfig, record: _Record,
+             truths: list, poses: list) -> KeptRun:
+    """What `--keep-frames` writes: each pose's frame, in the order the infer stage answered them."""
+    truth_at = {t.capture_ns: [t.x, t.y, t.yaw] for t in truths}
+    frames = [KeptFrame(capture_ns=p.capture_ns, capture_wall_ns=record.walls[p.capture_ns],
+                        hits=record.hits[p.capture_ns].ravel().tolist(),
+                        marks=record.marks[p.capture_ns].ravel().tolist(), truth=truth_at.get(p.capture_ns),
+                        pose=[p.x, p.y, p.yaw], valid=p.valid, reason=p.reason)
+              for p in poses if p.capture_ns in record.hits]
+    start = config.infer.start
+    return KeptRun(command=" ".join(["courtloc", *sys.argv[1:]]), scenario=name, court=court, camera=camera,
+                   fused=fused, start=None if start is None else start.model_dump(), size=list(record.size),
+                   dropped=len(record.hits) - len(frames), frames=frames)
 
 
 def _wait_for_stages(name: str, recorder, stages: list, log_dir: Path,  # noqa: ANN001

@@ -1,0 +1,78 @@
+"""The frames a twin run's infer stage answered, kept to replay that run in one process (`bench twin --keep-frames`).
+
+Through the chain, which frames the infer stage reaches (its latest-only inbox drops those it had not reached) and
+their capture times are the chain's own; the sweep's in-process walks choose theirs. A valid-and-wrong pose seen once
+through the chain (the robocon2025 suite, vision only, `drive`, twenty-fifth session) could not be traced for want of
+its inputs. The kept file holds, in order, every frame the stage answered with its capture stamps, hits and colour
+marks, the truth of that frame and the pose published, so `replay` steps a fresh tracker through the same input, as
+openpilot's process replay does, and a trace of the localizer can be taken on it.
+
+Vision only: with fusion the odometry's arrival between frames is not kept, so a fused run is kept but not replayed.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from courtloc.localizer.package import bundled_package
+from courtloc.localizer.predictor import Prediction, load_predictor
+from courtloc.localizer.tracking import Tracker
+from courtloc.services.infer.config import StartConfig
+from courtloc.services.infer.service import start_prior
+
+
+class KeptFrame(BaseModel):
+    """One frame the infer stage answered: its input and what it published."""
+
+    model_config = ConfigDict(extra="forbid")
+    capture_ns: int = Field(description="the frame's capture time on the camera's monotonic clock")
+    capture_wall_ns: int
+    hits: list[int] = Field(description="the edge hits, flattened rows of (row, col, ray, d)")
+    marks: list[int] = Field(default_factory=list, description="the colour marks, flattened rows of (row, col, mark)")
+    truth: Optional[list[float]] = Field(None, description="(x, y, yaw) of the twin's robot at this frame")
+    pose: list[Optional[float]] = Field(description="the published (x, y, yaw)")
+    valid: bool
+    reason: str = ""
+
+
+class KeptRun(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    command: str
+    scenario: str
+    court: str
+    camera: str
+    fused: bool
+    start: Optional[dict] = Field(None, description="the infer stage's [infer] start, as configured")
+    size: list[int] = Field(description="(width, height) of the frames")
+    dropped: int = Field(0, description="frames whose edges reached the bench but not the infer stage's answer")
+    frames: list[KeptFrame]
+
+
+def write_kept(path: Path, run: KeptRun) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(run.model_dump_json() + "\n")
+
+
+def read_kept(path: Path) -> KeptRun:
+    return KeptRun.model_validate(json.loads(path.read_text()))
+
+
+def replay(run: KeptRun) -> list[Prediction]:
+    """The bundled localizer of the run's court and camera, stepped by a fresh tracker with the run's start through
+    the frames the infer stage answered, as the stage steps it (`InferService.make_pose`)."""
+    if run.fused:
+        raise ValueError(f"{run.scenario}: a fused run cannot be replayed (the odometry's arrival is not kept)")
+    predictor = load_predictor(bundled_package(run.court, run.camera))
+    tracker = Tracker(start=start_prior(None if run.start is None else StartConfig(**run.start)))
+    width, height = run.size
+    out = []
+    for frame in run.frames:
+        hits = np.asarray(frame.hits, dtype=np.int16).reshape(-1, 4)
+        marks = np.asarray(frame.marks, dtype=np.int16).reshape(-1, 3)
+        out.append(tracker.step(predictor, hits, width, height, t=frame.capture_ns * 1e-9,
+                                capture_wall_ns=frame.capture_wall_ns, marks=marks))
+    return out
