@@ -326,8 +326,11 @@ def _by_marks(pick: int | None, explained: bool) -> Decision:
 def _marks_decision(hypotheses: list[Hypothesis], index: int, cfg: AcquireConfig) -> int | None:
     """The lone surviving hypothesis when the colour marks speak for it and it has moved since first seen:
     the marks tell twins apart, not the near-ties of one side (both see the same strip), and a view the
-    search misread stays misread while the robot stands still. Confirmed over `confirm_frames_marks`."""
+    search misread stays misread while the robot stands still; half as far with `marks_strong` marks for it (a few
+    frames full of them: the misread view on the robocon2025 twin that a quarter metre let through showed 12).
+    Confirmed over `confirm_frames_marks`."""
     h = hypotheses[index]
-    moved = math.hypot(*(h.pose[:2] - h.origin[:2])) >= cfg.marks_motion_m or \
-        _yaw_diff(h.pose[2], h.origin[2]) >= math.radians(cfg.marks_turn_deg)
+    scale = 0.5 if h.marks[0] >= cfg.marks_strong else 1.0
+    moved = math.hypot(*(h.pose[:2] - h.origin[:2])) >= scale * cfg.marks_motion_m or \
+        _yaw_diff(h.pose[2], h.origin[2]) >= math.radians(scale * cfg.marks_turn_deg)
     return index if colour_verdict(h, cfg) == "for" and moved else None

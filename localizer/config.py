@@ -101,6 +101,12 @@ class MotionConfig(BaseModel):
                                     "view. Such a track answers a view that pins only some directions invalid, and "
                                     "only a fit valid on its own re-anchors it (a view that fits the same wrong place "
                                     "two frames running still answers valid)")
+    unexplained_min_hits: int = Field(30, ge=0, description="a frame the track fits nothing in, with at least this "
+                                      "many hits judged at the constant-velocity prediction (0: never) ...")
+    unexplained_share: float = Field(0.3, ge=0, le=1, description="... of which less than this share lie on paint "
+                                     "there, is taken as an acquisition frame at once, the track one of its hypotheses "
+                                     "and its last pose the prior: the robot was moved, or the prediction ran off "
+                                     "(with odometry carrying the track, fusion judges such frames)")
 
 
 class AcquireConfig(BaseModel):
@@ -167,6 +173,9 @@ class AcquireConfig(BaseModel):
                                   "this far (or turned marks_turn_deg) since first seen: a near-tie of the same side "
                                   "sees the same strip, and a standing robot's misread view stays misread")
     marks_turn_deg: float = Field(20.0, gt=0)
+    marks_strong: int = Field(100, ge=1, description="... half as far (and half the turn) for one with at least this "
+                              "many marks for it: a kidnapped robot that saw the marks for 0.3 s and then bare floor "
+                              "waited seconds, and the misread view the motion rule guards against showed 12")
 
 
 class LocalizerConfig(BaseModel):
