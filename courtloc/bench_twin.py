@@ -496,7 +496,14 @@ def kept_run(name: str, court: str, camera: str, fused: bool, config: Deployment
     start = config.infer.start
     return KeptRun(command=" ".join(["courtloc", *sys.argv[1:]]), scenario=name, court=court, camera=camera,
                    fused=fused, start=None if start is None else start.model_dump(), size=list(record.size),
-                   dropped=len(record.hits) - len(frames), frames=frames)
+                   dropped=_unanswered(record, poses), frames=frames)
+
+
+def _unanswered(record: _Record, poses: list) -> int:
+    """Frames whose edges the bench saw before the last pose of the run but the infer stage never answered."""
+    answered = {p.capture_ns for p in poses}
+    last = max(answered, default=-1)
+    return sum(1 for ns in record.hits if ns <= last and ns not in answered)
 
 
 def _wait_for_stages(name: str, recorder, stages: list, log_dir: Path,  # noqa: ANN001

@@ -48,7 +48,8 @@ class KeptRun(BaseModel):
     fused: bool
     start: Optional[dict] = Field(None, description="the infer stage's [infer] start, as configured")
     size: list[int] = Field(description="(width, height) of the frames")
-    dropped: int = Field(0, description="frames whose edges reached the bench but not the infer stage's answer")
+    dropped: int = Field(0, description="frames before the run's last answer whose edges the bench saw and the infer "
+                         "stage did not answer (its latest-only inbox replaced them)")
     frames: list[KeptFrame]
 
 

@@ -380,6 +380,7 @@ def test_kept_frames_replayed_in_one_process_give_the_poses_the_infer_stage_publ
     assert run.court == "robocon2025" and run.camera == "robocon2025" and not run.fused and run.start is not None
     assert len(run.frames) == report["n"] and sum(f.valid for f in run.frames) == report["valid_n"] > 0
     assert any(f.marks for f in run.frames), "robocon2025's colour marks are kept with the hits"
+    assert 0 <= run.dropped <= report["frames"] - len(run.frames)
     replayed = replay(run)
     # The same code on the same machine: only a different BLAS thread count could reorder a sum (~1e-12 m).
     assert max(math.hypot(p.x - f.pose[0], p.y - f.pose[1]) for p, f in zip(replayed, run.frames)) < 1e-6
