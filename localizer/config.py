@@ -103,7 +103,7 @@ class MotionConfig(BaseModel):
                                     "two frames running still answers valid)")
     unexplained_min_hits: int = Field(30, ge=0, description="a frame the track fits nothing in, with at least this "
                                       "many hits judged at the constant-velocity prediction (0: never) ...")
-    unexplained_share: float = Field(0.3, ge=0, le=1, description="... of which less than this share lie on paint "
+    unexplained_share: float = Field(0.2, ge=0, le=1, description="... of which less than this share lie on paint "
                                      "there, is taken as an acquisition frame at once, the track one of its hypotheses "
                                      "and its last pose the prior: the robot was moved, or the prediction ran off "
                                      "(with odometry carrying the track, fusion judges such frames)")

@@ -372,17 +372,12 @@ def test_a_better_basin_the_drifted_track_cannot_follow_is_a_jump() -> None:
     valid on its own 0.22 m from the truth, and a probe beside it fits the truth's basin at a third of its cost. The
     probe is the frame's fit; too far for the track to follow, it is a jump, as the valid fit was: the acquisition
     after it confirms the truth and the pose is valid and right within 0.15 s. Merely gated, the better fit (not valid
-    on its own) let the track coast on: 0.8 m off, then lost, and ambiguous for seconds.
-    Since the twenty-sixth session the frame before that one (90 hits, few on paint at the drifted prediction) is
-    already taken as an acquisition frame (`MotionConfig.unexplained_min_hits`): the jump is checked without that
-    rule, and with it the pose is as right and valid one frame later."""
-    for rule_off, within_s in ((True, 0.15), (False, 0.2)):
-        errors, valid, frames = _replay_recording("seed_drifted_rebased_jump.json",
-                                                  motion_update={"unexplained_min_hits": 0} if rule_off else None)
-        assert not [e for e, v in zip(errors, valid) if v and e > 0.5]
-        back = [f["t"] for f, v in zip(frames, valid) if v]
-        assert back and back[0] - frames[0]["t"] <= within_s, (rule_off, back[:1])
-        assert max(errors[frames.index(next(f for f in frames if f["t"] == back[0])):]) <= 0.1
+    on its own) let the track coast on: 0.8 m off, then lost, and ambiguous for seconds."""
+    errors, valid, frames = _replay_recording("seed_drifted_rebased_jump.json")
+    assert not [e for e, v in zip(errors, valid) if v and e > 0.5]
+    back = [f["t"] for f, v in zip(frames, valid) if v]
+    assert back and back[0] - frames[0]["t"] <= 0.15, back[:1]
+    assert max(errors[frames.index(next(f for f in frames if f["t"] == back[0])):]) <= 0.1
 
 
 def test_the_tie_probes_leave_a_state_odometry_carried_to_the_frame_alone() -> None:
