@@ -493,9 +493,8 @@ def kept_run(name: str, court: str, camera: str, fused: bool, config: Deployment
                         marks=record.marks[p.capture_ns].ravel().tolist(), truth=truth_at.get(p.capture_ns),
                         pose=[p.x, p.y, p.yaw], valid=p.valid, reason=p.reason)
               for p in poses if p.capture_ns in record.hits]
-    start = config.infer.start
     return KeptRun(command=" ".join(["courtloc", *sys.argv[1:]]), scenario=name, court=court, camera=camera,
-                   fused=fused, start=None if start is None else start.model_dump(), size=list(record.size),
+                   fused=fused, start=config.infer.start, size=list(record.size),
                    dropped=_unanswered(record, poses), frames=frames)
 
 

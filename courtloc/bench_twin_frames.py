@@ -40,13 +40,15 @@ class KeptFrame(BaseModel):
 
 
 class KeptRun(BaseModel):
+    """One run's kept frames and what the replay needs to step them as the infer stage did."""
+
     model_config = ConfigDict(extra="forbid")
     command: str
     scenario: str
     court: str
     camera: str
     fused: bool
-    start: Optional[dict] = Field(None, description="the infer stage's [infer] start, as configured")
+    start: Optional[StartConfig] = Field(None, description="the infer stage's [infer] start, as configured")
     size: list[int] = Field(description="(width, height) of the frames")
     dropped: int = Field(0, description="frames before the run's last answer whose edges the bench saw and the infer "
                          "stage did not answer (its latest-only inbox replaced them)")
@@ -68,7 +70,7 @@ def replay(run: KeptRun) -> list[Prediction]:
     if run.fused:
         raise ValueError(f"{run.scenario}: a fused run cannot be replayed (the odometry's arrival is not kept)")
     predictor = load_predictor(bundled_package(run.court, run.camera))
-    tracker = Tracker(start=start_prior(None if run.start is None else StartConfig(**run.start)))
+    tracker = Tracker(start=start_prior(run.start))
     width, height = run.size
     out = []
     for frame in run.frames:

@@ -183,7 +183,8 @@ class GeometricLocalizer:
             # kidnap (vision only, seed 3) teleported the robot into 0.25 s of 40-83 hits, 0-1 on paint at the track,
             # which coasted through them to its lost-frame limit; acquisition then met sparse views and was valid
             # 6.8 s later. Judged as acquisition now, the court is searched in this frame, and a track that was
-            # right after all is one of the hypotheses, its last pose the prior that decides for it.
+            # right after all is one of the hypotheses, its last pose the prior that decides for it. The state is
+            # stepped again there as a hypothesis (its own rules: no regain guard), on such frames only.
             searching = acquire.Acquiring(prior=self.lost_prior(state),
                                           hypotheses=(acquire.Hypothesis(state, state.pose.copy(), state.t),),
                                           since_search=self.config.acquire.research_frames)
