@@ -147,6 +147,9 @@ class Edges(_Image):
     marks: bytes = Field(b"", max_length=MAX_MARKS_BYTES)
 
 
+ODOMETRY_SEQS_MAX = 512  # 100 Hz odometry through a 5 s camera outage
+
+
 class Pose(Strict):
     header: Header
     x: float
@@ -159,6 +162,11 @@ class Pose(Strict):
     reason: Text = ""
     covariance: list[float] = Field(default_factory=list, max_length=9,
                                     description="row-major 3x3 covariance of (x, y, yaw) when the model tracks; [] else")
+    # Which odometry the answer was fused with, so a logged run replays exactly (openpilot's process replay): the
+    # stage's inbox keeps only the newest message per topic, so the messages published are not all the ones taken in.
+    odometry_seqs: list[int] = Field(default_factory=list, max_length=ODOMETRY_SEQS_MAX,
+                                     description="source_seq of each odometry message the stage took in since its "
+                                     "previous answer, in order (fusion on; the newest ODOMETRY_SEQS_MAX)")
 
 
 class ShotSolution(Strict):

@@ -43,7 +43,7 @@ from courtloc.bench_twin_views import view_judge, with_views
 from courtloc.cli_errors import RUN_EXIT, UsageError
 from courtloc.cliargs import JSON_STDOUT, add_json_argument, json_output, json_to_stdout, positive_float
 from courtloc.common import codec
-from courtloc.common.messages import Edges, GroundTruth, Pose
+from courtloc.common.messages import Edges, GroundTruth, Odometry, Pose
 from courtloc.common.payloads import edges_hits, edges_marks
 from courtloc.common.services_table import SERVICES, TOPICS
 from courtloc.launcher import Supervisor, write_effective_config
@@ -318,6 +318,8 @@ class _Record:
     hits: dict = field(default_factory=dict)  # capture stamp -> the frame's edge hits (usable views)
     marks: dict = field(default_factory=dict)  # capture stamp -> the frame's colour marks (a kidnap's view: the side)
     walls: dict = field(default_factory=dict)  # capture stamp -> the frame's wall-clock capture time
+    odometry: list = field(default_factory=list)  # the bridge's odometry messages, as they came (fused runs)
+    taken: dict = field(default_factory=dict)  # capture stamp -> the odometry seqs its pose says the stage took in
     size: tuple[int, int] = (0, 0)  # the frames' width and height
     last_seq: int = -1
     undecodable: int = 0
@@ -338,7 +340,7 @@ class TwinRecorder(BusWatcher):
     def extra_subscribers(self, zsession):  # noqa: ANN001, ANN201
         robot = self.config.robot_id
         subs = [zsession.declare_subscriber(TOPICS[path].key(robot), self._keep(path))
-                for path in ("camera/ground_truth", "infer/pose", "preprocess/edges")]
+                for path in ("camera/ground_truth", "infer/pose", "preprocess/edges", "shooter_bridge/odometry")]
         self._decoder.start()
         self.subscribed.set()
         return subs
@@ -367,7 +369,9 @@ class TwinRecorder(BusWatcher):
                 self.record.undecodable += 1
                 continue
             header = message.header
-            if isinstance(message, GroundTruth):
+            if isinstance(message, Odometry):
+                self.record.odometry.append(message)
+            elif isinstance(message, GroundTruth):
                 sample = TruthSample(header.seq, header.capture_mono_ns, message.x, message.y, message.yaw)
                 with self._progress:
                     self.record.truths.append(sample)
@@ -375,6 +379,7 @@ class TwinRecorder(BusWatcher):
                     self._progress.notify_all()
             elif isinstance(message, Pose):
                 stamp = next((s for s in reversed(header.stamps) if s.stage == "infer"), header.stamps[-1])
+                self.record.taken[header.capture_mono_ns] = message.odometry_seqs
                 self.record.poses.append(PoseSample(header.capture_mono_ns, stamp.mono_ns, message.x, message.y,
                                                     message.yaw, header.valid, message.reason))
 
@@ -488,14 +493,29 @@ def kept_run(name: str, court: str, camera: str, fused: bool, config: Deployment
              truths: list, poses: list) -> KeptRun:
     """What `--keep-frames` writes: each pose's frame, in the order the infer stage answered them."""
     truth_at = {t.capture_ns: [t.x, t.y, t.yaw] for t in truths}
-    frames = [KeptFrame(capture_ns=p.capture_ns, capture_wall_ns=record.walls[p.capture_ns],
-                        hits=record.hits[p.capture_ns].ravel().tolist(),
-                        marks=record.marks[p.capture_ns].ravel().tolist(), truth=truth_at.get(p.capture_ns),
-                        pose=[p.x, p.y, p.yaw], valid=p.valid, reason=p.reason)
-              for p in poses if p.capture_ns in record.hits]
+    by_seq: dict[int, list[Odometry]] = {}
+    for message in record.odometry:
+        by_seq.setdefault(message.source_seq, []).append(message)
+    frames, carried, unkept = [], [], 0
+    for p in poses:
+        carried += record.taken.get(p.capture_ns, [])
+        if p.capture_ns not in record.hits:  # a frame the bench did not see: its odometry goes with the next one
+            continue
+        odometry = []
+        for seq in carried:
+            # A seq names a message within the MCU's epoch: the one taken is the latest captured before the answer.
+            before = [m for m in by_seq.get(seq, []) if m.header.capture_mono_ns <= p.published_ns]
+            if before:
+                odometry.append(max(before, key=lambda m: m.header.capture_mono_ns))
+        unkept += len(carried) - len(odometry)
+        carried = []
+        frames.append(KeptFrame(capture_ns=p.capture_ns, capture_wall_ns=record.walls[p.capture_ns],
+                                hits=record.hits[p.capture_ns].ravel().tolist(),
+                                marks=record.marks[p.capture_ns].ravel().tolist(), truth=truth_at.get(p.capture_ns),
+                                pose=[p.x, p.y, p.yaw], valid=p.valid, reason=p.reason, odometry=odometry))
     return KeptRun(command=" ".join(["courtloc", *sys.argv[1:]]), scenario=name, court=court, camera=camera,
-                   fused=fused, start=config.infer.start, size=list(record.size),
-                   dropped=_unanswered(record, poses), frames=frames)
+                   fused=fused, start=config.infer.start, fusion=config.infer.fusion if fused else None,
+                   size=list(record.size), dropped=_unanswered(record, poses), odometry_unkept=unkept, frames=frames)
 
 
 def _unanswered(record: _Record, poses: list) -> int:

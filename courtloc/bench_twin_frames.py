@@ -7,7 +7,8 @@ its inputs. The kept file holds, in order, every frame the stage answered with i
 marks, the truth of that frame and the pose published, so `replay` steps a fresh tracker through the same input, as
 openpilot's process replay does, and a trace of the localizer can be taken on it.
 
-Vision only: with fusion the odometry's arrival between frames is not kept, so a fused run is kept but not replayed.
+With fusion each frame also keeps the odometry messages the stage took in before answering it (`Pose.odometry_seqs`
+names them; the bench has them from the bridge's topic), offered to the replay's fusion in the same order.
 """
 from __future__ import annotations
 
@@ -18,6 +19,8 @@ from typing import Optional
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from courtloc.common.messages import HOST, Odometry
+from courtloc.localizer.odometry_fusion import FusionConfig, OdometryFusion
 from courtloc.localizer.package import bundled_package
 from courtloc.localizer.predictor import Prediction, load_predictor
 from courtloc.localizer.tracking import Tracker
@@ -37,6 +40,8 @@ class KeptFrame(BaseModel):
     pose: list[Optional[float]] = Field(description="the published (x, y, yaw)")
     valid: bool
     reason: str = ""
+    odometry: list[Odometry] = Field(default_factory=list, description="the odometry the stage took in before "
+                                     "answering this frame, in order (fused runs)")
 
 
 class KeptRun(BaseModel):
@@ -49,9 +54,12 @@ class KeptRun(BaseModel):
     camera: str
     fused: bool
     start: Optional[StartConfig] = Field(None, description="the infer stage's [infer] start, as configured")
+    fusion: Optional[FusionConfig] = Field(None, description="the infer stage's [infer.fusion] (fused runs)")
     size: list[int] = Field(description="(width, height) of the frames")
     dropped: int = Field(0, description="frames before the run's last answer whose edges the bench saw and the infer "
                          "stage did not answer (its latest-only inbox replaced them)")
+    odometry_unkept: int = Field(0, description="odometry messages the stage took in that the bench did not see (a "
+                                 "replay of a fused run with any is not the run)")
     frames: list[KeptFrame]
 
 
@@ -65,17 +73,35 @@ def read_kept(path: Path) -> KeptRun:
 
 
 def replay(run: KeptRun) -> list[Prediction]:
-    """The bundled localizer of the run's court and camera, stepped by a fresh tracker with the run's start through
-    the frames the infer stage answered, as the stage steps it (`InferService.make_pose`)."""
-    if run.fused:
-        raise ValueError(f"{run.scenario}: a fused run cannot be replayed (the odometry's arrival is not kept)")
+    """The bundled localizer of the run's court and camera, stepped by a fresh tracker with the run's start (and, fused,
+    a fresh odometry fusion taking in each frame's odometry first) through the frames the infer stage answered, as the
+    stage steps it (`InferService.on_message`, `make_pose`). A frame the stage refused as stale stepped nothing: its
+    answer here is an invalid one at the origin, as published."""
+    if run.fused and run.fusion is None:
+        raise ValueError(f"{run.scenario}: a fused run kept without its [infer.fusion] cannot be replayed")
     predictor = load_predictor(bundled_package(run.court, run.camera))
     tracker = Tracker(start=start_prior(run.start))
+    fusion = OdometryFusion(run.fusion) if run.fused and run.fusion is not None else None
     width, height = run.size
     out = []
     for frame in run.frames:
+        if fusion is not None:
+            for message in frame.odometry:
+                _take_in(fusion, message)
+        if frame.reason == "stale_input":
+            out.append(Prediction(x=0.0, y=0.0, quality=0.0, valid=False, reason="stale_input"))
+            continue
         hits = np.asarray(frame.hits, dtype=np.int16).reshape(-1, 4)
         marks = np.asarray(frame.marks, dtype=np.int16).reshape(-1, 3)
-        out.append(tracker.step(predictor, hits, width, height, t=frame.capture_ns * 1e-9,
+        out.append(tracker.step(predictor, hits, width, height, t=frame.capture_ns * 1e-9, fusion=fusion,
                                 capture_wall_ns=frame.capture_wall_ns, marks=marks))
     return out
+
+
+def _take_in(fusion: OdometryFusion, message: Odometry) -> None:
+    """Offer one kept message as the stage did: on this host (the kept stamps are one machine's monotonic clock,
+    whichever replays them) and at about its publication, the bridge's stamp (the stage's clock when it took it in
+    only judges stale and future messages, seconds off)."""
+    header = message.header.model_copy(update={"capture_host": HOST})
+    taken_ns = header.stamps[-1].mono_ns if header.stamps else header.capture_mono_ns
+    fusion.offer(message.model_copy(update={"header": header}), taken_ns * 1e-9)

@@ -31,7 +31,10 @@ at the frame's time). Vision fixes then correct it exactly as before (gate, fuse
   prediction has paint (`explained_share` of them: bridged as a blind frame), nor is a frame with fewer hits
   that the prediction itself contradicts (at least `min_hits_to_contradict`, of which less than
   `min_explained` lie on a paint edge with the robot at the predicted pose, no fit): too few lines to fit
-  are still lines where the odometry's pose has none.
+  are still lines where the odometry's pose has none. Nor is a frame without a fix whose lines do not speak for
+  the prediction and whose colour marks (at least `min_marks_to_contradict`, on a court that has them) lie under
+  `marks_explained` on their own colour at the predicted pose: a strip in view where the odometry's pose has
+  bare floor. That frame alone is refused (an occluder wearing the colour looks the same), no doubt raised.
 - **Acquisition.** While the localizer holds hypotheses instead of a track, odometry moves each of them (and
   the lost track's prior) to the frame, as it moves the track: the robot's motion is the same whichever of
   them is the truth.
@@ -98,6 +101,10 @@ class FusionConfig(BaseModel):
                                    "hits lie this much on paint at the predicted pose agrees with it: bridged as a "
                                    "blind frame, not a disagreement; a valid fit elsewhere in such a frame is a "
                                    "misread (no doubt)")
+    min_marks_to_contradict: int = Field(12, ge=1, description="a frame without a fix showing this many colour marks "
+                                         "(court.marks) contradicts the prediction when under marks_explained of them "
+                                         "lie on their own colour there")
+    marks_explained: float = Field(0.5, ge=0, le=1, description="see min_marks_to_contradict")
     outline_may_show: bool = Field(True, description="the court's outline may show as an edge (a floor lit "
                                    "brighter than the white mask's threshold): hits on it and on no paint neither "
                                    "explain nor contradict the predicted pose")
@@ -372,13 +379,15 @@ class OdometryFusion:
 
     def after_frame(self, valid: bool, fused_by_vision: bool, state: Optional[motion.MotionState],
                     t: Optional[float], n_hits: int = 0, contradicted: bool = False,
-                    beyond_edge: bool = False, explained: bool = False) -> tuple[bool, str]:
+                    beyond_edge: bool = False, explained: bool = False,
+                    marks_against: bool = False) -> tuple[bool, str]:
         """Learn from a vision fix; decide whether a frame without one may be valid on odometry alone
         (`n_hits`: the hits that count as lines in view; `contradicted`: a frame of few hits the prediction
         cannot explain, see `contradicts`; `beyond_edge`: at least `min_hits_to_contradict` hits on the court's
         outline and on no paint at the prediction, which the court model can neither explain nor hold against it,
         `GeometricLocalizer.paint_evidence`; `explained`: lines in view that lie on paint at the prediction, see
-        `explains`).
+        `explains`; `marks_against`: colour marks in view that the prediction leaves off their colour, see
+        `marks_contradict`).
 
         Returns (valid, reason): the frame's validity after fusion and, when odometry decided, why."""
         if t is None or state is None:
@@ -429,6 +438,9 @@ class OdometryFusion:
             # from elsewhere. Not a frame to be valid on, nor evidence of a move (no doubt).
             self.counts["beyond_edge"] += 1
             return False, "odometry_unconfirmed"
+        if marks_against:
+            self.counts["marks_contradict"] += 1
+            return False, "odometry_unconfirmed"
         if self.doubt:
             # Blind after a view the prediction could not explain: the robocon2025 twin's kidnap on its loop (fused):
             # after contradicted frames one fit near the old place was a fix (a view from 1.9 m away that fits
@@ -455,6 +467,12 @@ class OdometryFusion:
     def few_hits(self, n_hits: int) -> bool:
         """Too few hits to count as lines in view, enough to contradict the prediction."""
         return self.config.min_hits_to_contradict <= n_hits < self.config.min_hits_in_view
+
+    def marks_contradict(self, own: int, seen: int) -> bool:
+        """Whether a frame's colour marks (`seen` of them on the floor, `own` on their own colour at the predicted
+        pose) speak against the prediction: a strip in view where the prediction has bare floor. Lines can be out of
+        view (a robot facing a strip close up) while the marks are not."""
+        return seen >= self.config.min_marks_to_contradict and own < self.config.marks_explained * seen
 
     def contradicts(self, on_paint: int, judged: int) -> bool:
         """Whether a frame of few hits speaks against the prediction: of the hits judged at the odometry

@@ -157,6 +157,16 @@ class GeometricPredictor:
         return _prediction(step.result), step.state
 
 
+    def mark_evidence(self, pose: np.ndarray, marks: np.ndarray | None) -> tuple[int, int]:
+        """(marks on their own colour at `pose`, marks on the floor) of a frame's colour marks ((0, 0) without any, or
+        on a court without marks)."""
+        if marks is None or not len(marks) or self.localizer.mark_map is None:
+            return 0, 0
+        points = mark_points(self.floor_table, self.width, np.asarray(marks))
+        own, _ = self.localizer.mark_map.evidence(pose, points)
+        return own, len(points)
+
+
 def _prediction(res: LocalizeResult) -> Prediction:
     x, y, yaw = (float(v) for v in res.pose)
     return Prediction(x=x, y=y, yaw=yaw, quality=res.quality, valid=res.valid, mode=res.mode,

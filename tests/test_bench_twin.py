@@ -366,25 +366,32 @@ def test_a_killed_bench_stops_the_router_and_stages_it_started() -> None:
 
 def test_kept_frames_replayed_in_one_process_give_the_poses_the_infer_stage_published(tmp_path: Path):
     """`--keep-frames`: the frames the chain's infer stage answered, replayed through a fresh tracker in this process
-    (openpilot's process replay), give the same poses. A frame missing, out of order or with the wrong stamp, hits,
-    marks or start would set the replay's track elsewhere."""
+    (openpilot's process replay), give the same poses, vision only and fused. A frame missing, out of order or with the
+    wrong stamp, hits, marks or start, or (fused) an odometry message missing or offered a frame late, would set the
+    replay's track elsewhere."""
     from courtloc.bench_twin_frames import read_kept, replay
 
     out, kept = tmp_path / "twin.json", tmp_path / "kept"
     result = subprocess.run([sys.executable, "-m", "courtloc", "bench", "twin", "--court", "robocon2025",
-                             "--scenario", "randomised", "--seconds", "4", "--json", str(out),
-                             "--keep-frames", str(kept)], capture_output=True, text=True, timeout=240)
+                             "--scenario", "randomised", "--seconds", "4", "--fusion", "both", "--json", str(out),
+                             "--keep-frames", str(kept)], capture_output=True, text=True, timeout=360)
     assert result.returncode == 0, result.stderr[-3000:]
-    report = json.loads(out.read_text())["randomised"]
-    run = read_kept(kept / "randomised.json")
-    assert run.court == "robocon2025" and run.camera == "robocon2025" and not run.fused and run.start is not None
-    assert len(run.frames) == report["n"] and sum(f.valid for f in run.frames) == report["valid_n"] > 0
-    assert any(f.marks for f in run.frames), "robocon2025's colour marks are kept with the hits"
-    assert 0 <= run.dropped <= report["frames"] - len(run.frames)
-    replayed = replay(run)
-    # The same code on the same machine: only a different BLAS thread count could reorder a sum (~1e-12 m).
-    assert max(math.hypot(p.x - f.pose[0], p.y - f.pose[1]) for p, f in zip(replayed, run.frames)) < 1e-6
-    # Validity as the localizer decided it; the stage itself refuses a stale or invalid input on top.
-    judged = [(p.valid, f.valid) for p, f in zip(replayed, run.frames)
-              if f.reason not in ("stale_input", "invalid_input", "off_court")]
-    assert len(judged) > 0.9 * len(run.frames) and all(a == b for a, b in judged)
+    reports = json.loads(out.read_text())["randomised"]
+    for name, fused in (("randomised", False), ("randomised_fused", True)):
+        report = reports["fused" if fused else "vision_only"]
+        run = read_kept(kept / f"{name}.json")
+        assert run.court == "robocon2025" and run.camera == "robocon2025" and run.start is not None
+        assert run.fused == fused and (run.fusion is not None) == fused
+        assert len(run.frames) == report["n"] and sum(f.valid for f in run.frames) == report["valid_n"] > 0
+        assert any(f.marks for f in run.frames), "robocon2025's colour marks are kept with the hits"
+        assert 0 <= run.dropped <= report["frames"] - len(run.frames)
+        # 100 Hz odometry over 4 s, each message taken in before one answer (the bench saw them all).
+        taken = sum(len(f.odometry) for f in run.frames)
+        assert (taken > 100 and run.odometry_unkept == 0) if fused else taken == 0, (taken, run.odometry_unkept)
+        replayed = replay(run)
+        # The same code on the same machine: only a different BLAS thread count could reorder a sum (~1e-12 m).
+        assert max(math.hypot(p.x - f.pose[0], p.y - f.pose[1]) for p, f in zip(replayed, run.frames)) < 1e-6, name
+        # Validity as the localizer decided it; the stage itself refuses a stale or invalid input on top.
+        judged = [(p.valid, f.valid) for p, f in zip(replayed, run.frames)
+                  if f.reason not in ("stale_input", "invalid_input", "off_court")]
+        assert len(judged) > 0.9 * len(run.frames) and all(a == b for a, b in judged), name

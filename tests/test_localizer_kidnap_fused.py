@@ -23,6 +23,8 @@ from courtloc.localizer.tracking import Tracker
 DATA = Path(__file__).parent / "data" / "r25_kidnap_blind_after_marks.json"
 # The same walk at 15 fps (the sweep's `half` timing), 8.8-12.0 s.
 DATA_HALF = Path(__file__).parent / "data" / "r25_kidnap_marks_carried.json"
+# Seed 6, every frame, 19.0-24.0 s: teleported at 20 s to face the red strip close up, no line in view for 0.8 s.
+DATA_STRIP = Path(__file__).parent / "data" / "r25_kidnap_facing_strip.json"
 
 
 def _rows(text: str, columns: int) -> np.ndarray:
@@ -39,8 +41,14 @@ def replay_half():  # noqa: ANN201
     return _load(DATA_HALF)
 
 
+@pytest.fixture(scope="module")
+def replay_strip():  # noqa: ANN201
+    return _load(DATA_STRIP)
+
+
 def _load(path: Path):  # noqa: ANN202
-    """The recorded frames, the odometry made again from seed 3's scenario, and the court's bundled predictor."""
+    """The recorded frames, the odometry made again from their seed's scenario (3 unless named), and the court's
+    bundled predictor."""
     from courtloc import bench_sweep
     from courtloc.bench_twin import build_scenarios
     from courtloc.sim.odometry import OdometrySimConfig, OdometrySimulator
@@ -50,7 +58,7 @@ def _load(path: Path):  # noqa: ANN202
     parser = argparse.ArgumentParser()
     bench_sweep.add_arguments(parser)
     args = parser.parse_args(["--court", "robocon2025", "--scenario", "kidnap"])
-    sc = build_scenarios(["kidnap"], argparse.Namespace(**{**vars(args), "seed": 3}))[0]
+    sc = build_scenarios(["kidnap"], argparse.Namespace(**{**vars(args), "seed": data.get("seed", 3)}))[0]
     assert list(sc.sim.kidnaps_s) == data["kidnaps_s"]
     with SimSource(sc.sim) as source:
         odometry = list(OdometrySimulator(source.trajectory, OdometrySimConfig(), seed=sc.sim.seed,
@@ -58,13 +66,14 @@ def _load(path: Path):  # noqa: ANN202
     return data, odometry, load_predictor(bundled_package("robocon2025", "robocon2025"))
 
 
-def _run(replay) -> list[tuple[float, bool, float, object, int]]:  # noqa: ANN001
+def _run(replay, **fusion_fields) -> list[tuple[float, bool, float, object, int]]:  # noqa: ANN001, ANN003
     """Each frame: (time, valid, error m, the tracker's state after it, kidnap suspicions so far). The tracker
-    starts from the first frame's truth as a configured start; odometry reaches it one frame period late."""
+    starts from the first frame's truth as a configured start; odometry reaches it one frame period late.
+    `fusion_fields`: [infer.fusion] settings other than the defaults."""
     data, odometry, predictor = replay
     first = data["frames"][0]
     tracker = Tracker(start=acquire.Prior("start", pose=np.array(first["truth"]), std_m=0.1, yaw_std_rad=0.1))
-    fusion = OdometryFusion(FusionConfig(enabled=True))
+    fusion = OdometryFusion(FusionConfig(enabled=True, **fusion_fields))
     delivered, out = 0, []
     for frame in data["frames"]:
         now = frame["t"] + 1.0 / data["fps"]
@@ -112,3 +121,20 @@ def test_a_marks_decision_that_odometry_carries_needs_a_frame_less(replay_half) 
     assert any(valid for t, valid, _, _, _ in rows if t < kidnap)
     back = [t for t, valid, _, _, _ in rows if valid and t >= kidnap]
     assert back and back[0] < kidnap + 1.5, back[:1]
+
+
+def test_a_colour_strip_where_odometry_has_bare_floor_makes_the_pose_invalid(replay_strip) -> None:  # noqa: ANN001
+    """Teleported to face the red strip close up: no line in view for 0.8 s, so nothing fits and odometry (which did
+    not feel the teleport) carried the pose on, 2.8 m off, valid. The strip's colour marks fall on bare floor there
+    (1 of 256 on red; all of them at the truth): such a frame contradicts the prediction as lines it cannot explain
+    would, and the pose is invalid until the robot is found again."""
+    kidnap = replay_strip[0]["kidnaps_s"][1]
+    ignored = _run(replay_strip, min_marks_to_contradict=10_000)
+    assert [t for t, valid, error, _, _ in ignored if valid and error > 0.5], "the recording shows the episode"
+    rows = _run(replay_strip)
+    assert any(valid for t, valid, _, _, _ in rows if t < kidnap)  # tracking before the teleport
+    assert not [(t, round(error, 2)) for t, valid, error, _, _ in rows if valid and error > 0.5]
+    # Found again (3.3 s later, once lines are in view) as soon as without the rule.
+    back = [(t, error) for t, valid, error, _, _ in rows if valid and t >= kidnap]
+    right_before = [t for t, valid, error, _, _ in ignored if valid and t >= kidnap and error <= 0.1]
+    assert back and back[0][1] <= 0.1 and right_before and back[0][0] <= right_before[0]

@@ -3,6 +3,7 @@ them, and acquisition tells the court's point-symmetric twins apart by them (loc
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +20,7 @@ from courtloc.scan.preprocessor import Preprocessor
 from courtloc.services.deployment import DeploymentConfig
 from courtloc.sim.render import OccluderOptions, Renderer, RenderOptions
 
+DATA = Path(__file__).parent / "data"
 # Facing the red strip (+y) with the key and the three-point line in view.
 FACING_RED = [(4.0, 1.0, 0.7), (5.5, 0.0, 1.2)]
 
@@ -223,3 +225,30 @@ def test_an_unpinned_hypothesis_whose_line_never_meets_the_area_is_not_the_robot
     seen = [loc.mark_map.evidence(h.pose, points) for _, h in live]
     kept = placed_by_marks(live, points, seen, loc.config.acquire, loc.mark_map, loc.court.area_half_extent_m)
     assert len(kept) == 1 and np.allclose(kept[0][1].pose, truth)
+
+
+def test_colour_marks_the_decided_pose_puts_on_bare_floor_undo_a_priors_decision() -> None:
+    """The robocon2025 twin's `drive_kidnap` through the chain, fused, its first 150 frames as the infer stage took them
+    in (`bench twin --keep-frames`, odometry included), replayed in one process. After the teleport at 4.0 s the lost
+    track's prior decided for a basin 2.3 m off while 150-260 marks of the strip the robot faced fell on bare floor
+    there; three frames confirmed it and the stage published 9 valid poses 2.1-2.2 m off. Marks the decided pose does
+    not put on their own colour undo the decision: none of those, and the truth is found within the slice."""
+    import gzip
+
+    from courtloc.bench_twin_frames import KeptRun, replay
+
+    run = KeptRun.model_validate_json(gzip.decompress((DATA / "r25_drive_kidnap_fused_marks.json.gz").read_bytes()))
+    assert run.fused and run.odometry_unkept == 0 and sum(len(f.odometry) for f in run.frames) > 300
+
+    def err(x: float, y: float, truth: list[float]) -> float:
+        return math.hypot(x - truth[0], y - truth[1])
+
+    teleport = next(i for i in range(1, len(run.frames))
+                    if err(*run.frames[i - 1].truth[:2], run.frames[i].truth) > 0.5)
+    published = [err(f.pose[0], f.pose[1], f.truth) for f in run.frames if f.valid]
+    assert sum(e > 0.5 for e in published) == 9, "the recording holds the episode"
+    replayed = replay(run)
+    wrong = [i for i, (p, f) in enumerate(zip(replayed, run.frames)) if p.valid and err(p.x, p.y, f.truth) > 0.5]
+    assert wrong == []
+    after = [err(p.x, p.y, f.truth) for p, f in zip(replayed[teleport:], run.frames[teleport:]) if p.valid]
+    assert after and max(after) < 0.1, "the robot is found again where it was moved to"

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,7 @@ from pydantic import BaseModel
 from courtloc.common.bus import ZenohConfig
 from courtloc.common.control import ModelReply, PoseReply, SetPose
 from courtloc.common.inbox import Delivery
-from courtloc.common.messages import Edges, Odometry, Pose
+from courtloc.common.messages import ODOMETRY_SEQS_MAX, Edges, Odometry, Pose
 from courtloc.common.payloads import edges_hits, edges_marks
 from courtloc.common.runtime import Service
 from courtloc.common.services_table import Control, Topic
@@ -70,6 +71,7 @@ class InferService(Service):
         self.resume = ResumeFile(config.resume_path, robot_id)
         # Odometry fusion (localizer/odometry_fusion.py): None unless configured, then poses are as before.
         self.fusion = OdometryFusion(config.fusion) if config.fusion.enabled else None
+        self._odometry_seqs: deque[int] = deque(maxlen=ODOMETRY_SEQS_MAX)  # taken in since the last answer
         self.swaps = 0
         self._control = ModelControl(self, Uploads(self.store, int(config.max_upload_mb * 2**20),
                                                    max_open=config.max_open_uploads, ttl_s=config.upload_ttl_h * 3600))
@@ -145,6 +147,7 @@ class InferService(Service):
         if isinstance(message, Odometry):  # fusion hook: odometry only fills the fusion's buffer
             if self.fusion is not None:
                 self.fusion.offer(message, time.monotonic())
+                self._odometry_seqs.append(message.source_seq)
             return
         fresh = self.is_fresh(message.header, topic)
         try:
@@ -164,10 +167,10 @@ class InferService(Service):
             # tracker's motion model (a frame "from" +1000 s would poison every later prediction).
             self.publish("infer/pose", Pose(header=message.header.forwarded(self.name, valid=False), x=0.0, y=0.0,
                                             model_name=model.ref.name, model_version=model.ref.version,
-                                            infer_ms=0.0, reason="stale_input"))
+                                            infer_ms=0.0, reason="stale_input", odometry_seqs=self._odometry_taken()))
             return
         pose = self.make_pose(model, message, hits, fresh=fresh, tracker=self.tracker, marks=marks)
-        self.publish("infer/pose", pose)
+        self.publish("infer/pose", pose.model_copy(update={"odometry_seqs": self._odometry_taken()}))
         if pose.header.valid and self.resume.due(pose.header.capture_wall_ns):
             prior = self.tracker.tracked_prior()
             fusion = self.fusion
@@ -177,6 +180,12 @@ class InferService(Service):
         shadow = self.shadow
         if shadow is not None:
             shadow.offer(message, hits, pose, marks)
+
+    def _odometry_taken(self) -> list[int]:
+        """The odometry taken in since the last answer (`Pose.odometry_seqs`), and a fresh count for the next."""
+        seqs = list(self._odometry_seqs)
+        self._odometry_seqs.clear()
+        return seqs
 
     def make_pose(self, model: LoadedModel, edges: Edges, hits: np.ndarray, fresh: bool, tracker: Tracker,
                   marks: np.ndarray | None = None) -> Pose:
