@@ -169,8 +169,9 @@ class InferService(Service):
                                             model_name=model.ref.name, model_version=model.ref.version,
                                             infer_ms=0.0, reason="stale_input", odometry_seqs=self._odometry_taken()))
             return
-        pose = self.make_pose(model, message, hits, fresh=fresh, tracker=self.tracker, marks=marks)
-        self.publish("infer/pose", pose.model_copy(update={"odometry_seqs": self._odometry_taken()}))
+        pose = self.make_pose(model, message, hits, fresh=fresh, tracker=self.tracker, marks=marks,
+                              odometry_seqs=self._odometry_taken())
+        self.publish("infer/pose", pose)
         if pose.header.valid and self.resume.due(pose.header.capture_wall_ns):
             prior = self.tracker.tracked_prior()
             fusion = self.fusion
@@ -188,9 +189,9 @@ class InferService(Service):
         return seqs
 
     def make_pose(self, model: LoadedModel, edges: Edges, hits: np.ndarray, fresh: bool, tracker: Tracker,
-                  marks: np.ndarray | None = None) -> Pose:
-        """The pose of one frame (`marks`: its colour marks, decoded); `tracker` gives the start and learns
-        from the result."""
+                  marks: np.ndarray | None = None, odometry_seqs: list[int] | None = None) -> Pose:
+        """The pose of one frame (`marks`: its colour marks, decoded; `odometry_seqs`: the odometry taken in since the
+        last answer, `Pose.odometry_seqs`); `tracker` gives the start and learns from the result."""
         start = time.perf_counter()
         reason = ""
         x = y = 0.0
@@ -231,7 +232,8 @@ class InferService(Service):
         header = edges.header.forwarded(self.name, valid=ok)
         return Pose(header=header, x=x, y=y, yaw=None if yaw is None else float(yaw), quality=quality,
                     model_name=model.ref.name, model_version=model.ref.version,
-                    infer_ms=(time.perf_counter() - start) * 1e3, reason=reason, covariance=covariance)
+                    infer_ms=(time.perf_counter() - start) * 1e3, reason=reason, covariance=covariance,
+                    odometry_seqs=odometry_seqs or [])
 
     # ---- model control (the runtime's control thread) -------------------------------------------
     def on_control(self, control: Control, request: BaseModel) -> BaseModel:
