@@ -52,13 +52,12 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    whose search found nothing within the decided fit's tie: the decision was relative to the hypotheses
    found, and a search blind to this view cannot have found the decided one's rivals (a decision by colour
    marks judges the hypothesis itself, after it moved). A frame showing `marks_min` or more colour marks of which
-   the decided hypothesis puts fewer than half on their own colour undoes the decision's count (painted where it
-   says there is none: the robot is elsewhere, or an occluder wears the colour). A frame in which only hypotheses
-   first seen in it stand
-   in the way of the decision (those tracked before it would still make it) neither counts nor undoes it
-   (`GeometricLocalizer._held_decision`): they have no evidence yet. Then the track starts there and the
-   frame is valid. Until then every frame is
-   invalid with reason `ambiguous` (several hypotheses) or `searching` (none yet).
+   the decided hypothesis puts under `marks_decided_share` (half) on their own colour undoes the decision's count
+   (painted where it says there is none: the robot is elsewhere, or an occluder wears the colour). A frame in
+   which only hypotheses first seen in it stand in the way of the decision (those tracked before it would still
+   make it) neither counts nor undoes it (`GeometricLocalizer._held_decision`): they have no evidence yet. Then
+   the track starts there and the frame is valid. Until then every frame is invalid with reason `ambiguous`
+   (several hypotheses) or `searching` (none yet).
 Pure functions of the state the caller passes in, like motion.py.
 """
 from __future__ import annotations

@@ -156,7 +156,6 @@ class GeometricPredictor:
         step = self.localizer.track(self.projected_hits(hits), state, t, points)
         return _prediction(step.result), step.state
 
-
     def mark_evidence(self, pose: np.ndarray, marks: np.ndarray | None) -> tuple[int, int]:
         """(marks on their own colour at `pose`, marks on the floor) of a frame's colour marks ((0, 0) without any, or
         on a court without marks)."""
