@@ -152,7 +152,7 @@ class GeometricPredictor:
         points = None
         if marks is not None and len(marks) and self.localizer.mark_map is not None:
             def points() -> MarkPoints:  # on the floor only when acquisition asks (a tracked frame does not)
-                return mark_points(self.floor_table, self.width, np.asarray(marks))
+                return self._mark_points(marks)
         step = self.localizer.track(self.projected_hits(hits), state, t, points)
         return _prediction(step.result), step.state
 
@@ -161,9 +161,13 @@ class GeometricPredictor:
         on a court without marks)."""
         if marks is None or not len(marks) or self.localizer.mark_map is None:
             return 0, 0
-        points = mark_points(self.floor_table, self.width, np.asarray(marks))
+        points = self._mark_points(marks)
         own, _ = self.localizer.mark_map.evidence(pose, points)
         return own, len(points)
+
+    def _mark_points(self, marks: np.ndarray) -> MarkPoints:
+        """A frame's colour marks (int16 rows of (row, col, mark index)) on the floor, robot frame."""
+        return mark_points(self.floor_table, self.width, np.asarray(marks))
 
 
 def _prediction(res: LocalizeResult) -> Prediction:
