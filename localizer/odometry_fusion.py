@@ -34,7 +34,8 @@ at the frame's time). Vision fixes then correct it exactly as before (gate, fuse
   are still lines where the odometry's pose has none. Nor is a frame without a fix whose lines do not speak for
   the prediction and whose colour marks (at least `min_marks_to_contradict`, on a court that has them) lie under
   `marks_explained` on their own colour at the predicted pose: a strip in view where the odometry's pose has
-  bare floor. That frame alone is refused (an occluder wearing the colour looks the same), no doubt raised.
+  bare floor, unless a few hits (`lines_over_marks`) lie on paint there. That frame alone is refused (an occluder
+  wearing the colour looks the same), no doubt raised.
 - **Acquisition.** While the localizer holds hypotheses instead of a track, odometry moves each of them (and
   the lost track's prior) to the frame, as it moves the track: the robot's motion is the same whichever of
   them is the truth.
@@ -105,6 +106,9 @@ class FusionConfig(BaseModel):
                                          "(court.marks) contradicts the prediction when under marks_explained of them "
                                          "lie on their own colour there")
     marks_explained: float = Field(0.5, ge=0, le=1, description="see min_marks_to_contradict")
+    lines_over_marks: int = Field(3, ge=1, description="... unless at least this many hits are judged at the prediction "
+                                  "and min_explained of them lie on paint there: lines, however few, are the evidence, "
+                                  "and marks may be an occluder's colour")
     outline_may_show: bool = Field(True, description="the court's outline may show as an edge (a floor lit "
                                    "brighter than the white mask's threshold): hits on it and on no paint neither "
                                    "explain nor contradict the predicted pose")
@@ -473,6 +477,10 @@ class OdometryFusion:
         pose) speak against the prediction: a strip in view where the prediction has bare floor. Lines can be out of
         view (a robot facing a strip close up) while the marks are not."""
         return seen >= self.config.min_marks_to_contradict and own < self.config.marks_explained * seen
+
+    def lines_outweigh_marks(self, on_paint: int, judged: int) -> bool:
+        """Whether a frame's few lines speak for the prediction over its colour marks (`lines_over_marks`)."""
+        return judged >= self.config.lines_over_marks and on_paint >= self.config.min_explained * judged
 
     def contradicts(self, on_paint: int, judged: int) -> bool:
         """Whether a frame of few hits speaks against the prediction: of the hits judged at the odometry

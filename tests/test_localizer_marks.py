@@ -252,3 +252,24 @@ def test_colour_marks_the_decided_pose_puts_on_bare_floor_undo_a_priors_decision
     assert wrong == []
     after = [err(p.x, p.y, f.truth) for p, f in zip(replayed[teleport:], run.frames[teleport:]) if p.valid]
     assert after and max(after) < 0.1, "the robot is found again where it was moved to"
+
+
+def test_a_few_lines_on_paint_outweigh_marks_that_odometrys_pose_leaves_on_bare_floor() -> None:
+    """The robocon2025 twin's `occluded` walk through the chain, fused, its first 120 frames as the infer stage took
+    them in. Occluders drawn in the strips' colours put colour marks on bare floor at odometry's (right) pose; where the
+    frame's few hits lie on paint there, the lines win and the frame stays valid (refused, those frames cost the run
+    2.5 points of validity). Without lines beside them the marks still refuse the frame (the kidnap test above)."""
+    import gzip
+
+    from courtloc.bench_twin_frames import KeptRun, replay
+
+    data = DATA / "r25_occluded_fused_lines_over_marks.json.gz"
+    run = KeptRun.model_validate_json(gzip.decompress(data.read_bytes()))
+    assert run.fused and run.odometry_unkept == 0
+    replayed = replay(run)
+    marks_only = replay(run.model_copy(update={"fusion": run.fusion.model_copy(update={"lines_over_marks": 10**6})}))
+    given_back = [i for i, (p, q) in enumerate(zip(replayed, marks_only)) if p.valid and not q.valid]
+    assert given_back, "the recording holds frames the marks alone refuse"
+    errors = [math.hypot(p.x - f.truth[0], p.y - f.truth[1]) for p, f in zip(replayed, run.frames)]
+    assert max(errors[i] for i in given_back) < 0.1
+    assert not [i for i, p in enumerate(replayed) if p.valid and errors[i] > 0.5]
