@@ -106,9 +106,9 @@ class FusionConfig(BaseModel):
                                          "(court.marks) contradicts the prediction when under marks_explained of them "
                                          "lie on their own colour there")
     marks_explained: float = Field(0.5, ge=0, le=1, description="see min_marks_to_contradict")
-    lines_over_marks: int = Field(3, ge=1, description="... unless at least this many hits are judged at the prediction "
-                                  "and min_explained of them lie on paint there: lines, however few, are the evidence, "
-                                  "and marks may be an occluder's colour")
+    lines_over_marks: int = Field(3, ge=1, description="... unless at least this many hits are judged at the "
+                                  "prediction and min_explained of them lie on paint there: lines, however few, are "
+                                  "the evidence, and marks may be an occluder's colour")
     outline_may_show: bool = Field(True, description="the court's outline may show as an edge (a floor lit "
                                    "brighter than the white mask's threshold): hits on it and on no paint neither "
                                    "explain nor contradict the predicted pose")
