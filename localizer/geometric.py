@@ -23,7 +23,7 @@ from courtloc.localizer.config import Half, LocalizerConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.fit import FitResult, fit_pose, fit_poses, quality_score
 from courtloc.localizer.hypotheses import merge_converged, placed_by_marks, with_twins
-from courtloc.localizer.marks import MarkMap, MarkPoints
+from courtloc.localizer.marks import MarkMap, MarkPoints, off_their_colour
 from courtloc.localizer.projection import HitGeometry, ProjectedHits
 from courtloc.localizer.result import LocalizeResult
 from courtloc.localizer.search import CoarseSearch
@@ -455,7 +455,8 @@ class GeometricLocalizer:
             seen = [self.mark_map.evidence(h.pose, points) for _, h in live]
             live = [(res, replace(h, marks=tuple(a + b for a, b in zip(h.marks, ev))))
                     for (res, h), ev in zip(live, seen)]
-            if len(points) >= acfg.marks_min and all(own < len(points) / 2 for own, _ in seen):
+            if len(points) >= acfg.marks_min and all(off_their_colour(own, len(points), acfg.marks_min, 0.5)
+                                                     for own, _ in seen):
                 # Colour marks in view that no hypothesis puts on their own colour: the robot is none of them
                 # (or the marks are an occluder's), so the court is searched again next frame, not research_frames
                 # later (the robocon2025 twin's first kidnap, replayed: the truth, showing 66 marks, was found
@@ -517,8 +518,8 @@ class GeometricLocalizer:
             # robocon2025 twin's kidnap (fused, seed 3) decided by the marks after 0.5 s of views, then faced bare
             # floor for 5 s; every such frame restarted the confirmation, and the hypotheses died of them.
             agreed = state.agreed
-        if agreed and points is not None and len(points) >= acfg.marks_min and \
-                self.mark_map.evidence(chosen.pose, points)[0] < acfg.marks_decided_share * len(points):
+        if agreed and points is not None and off_their_colour(self.mark_map.evidence(chosen.pose, points)[0],
+                                                              len(points), acfg.marks_min, acfg.marks_decided_share):
             # Colour marks in view that the decided pose does not put on their own colour: painted where it says
             # there is none, or the robot is elsewhere (an occluder's colour only delays the decision). Evidence
             # against the decision: it starts again. The robocon2025 twin's drive_kidnap through the chain (fused,

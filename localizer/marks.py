@@ -41,6 +41,13 @@ def mark_points(floor_table: np.ndarray, width: int, marks: np.ndarray) -> MarkP
     return MarkPoints(points[seen], marks[inside, 2][seen].astype(np.int64))
 
 
+def off_their_colour(own: int, seen: int, min_marks: int, share: float) -> bool:
+    """Whether a frame's colour marks speak against a pose: at least `min_marks` of them on the floor (`seen`), under
+    `share` of them on their own colour there (`own`, `MarkMap.evidence`). The search-again rule, a decision being
+    confirmed and odometry's pose are all judged by it."""
+    return seen >= min_marks and own < share * seen
+
+
 class MarkMap:
     """Which of the court's marks is painted where, on a top-down grid."""
 

@@ -58,6 +58,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from courtloc.common.messages import HOST, Odometry
 from courtloc.localizer import acquire, motion
+from courtloc.localizer.marks import off_their_colour
 from courtloc.localizer.odometry_buffer import OdometryBuffer, OdometryDelta, OdometrySample
 from courtloc.world.angles import wrap_angle
 
@@ -476,7 +477,7 @@ class OdometryFusion:
         """Whether a frame's colour marks (`seen` of them on the floor, `own` on their own colour at the predicted
         pose) speak against the prediction: a strip in view where the prediction has bare floor. Lines can be out of
         view (a robot facing a strip close up) while the marks are not."""
-        return seen >= self.config.min_marks_to_contradict and own < self.config.marks_explained * seen
+        return off_their_colour(own, seen, self.config.min_marks_to_contradict, self.config.marks_explained)
 
     def lines_outweigh_marks(self, on_paint: int, judged: int) -> bool:
         """Whether a frame's few lines speak for the prediction over its colour marks (`lines_over_marks`)."""
