@@ -35,7 +35,10 @@ at the frame's time). Vision fixes then correct it exactly as before (gate, fuse
   the prediction and whose colour marks (at least `min_marks_to_contradict`, on a court that has them) lie under
   `marks_explained` on their own colour at the predicted pose: a strip in view where the odometry's pose has
   bare floor, unless a few hits (`lines_over_marks`) lie on paint there. That frame alone is refused (an occluder
-  wearing the colour looks the same), no doubt raised.
+  wearing the colour looks the same), no doubt raised. Few lines and few marks, each too little alone but
+  together at least `min_evidence_together`, both mostly off at the prediction (hits under `min_explained` on
+  paint, marks under `marks_explained` on their colour) contradict it as enough lines would: a frame against it
+  by two independent kinds of evidence.
 - **Acquisition.** While the localizer holds hypotheses instead of a track, odometry moves each of them (and
   the lost track's prior) to the frame, as it moves the track: the robot's motion is the same whichever of
   them is the truth.
@@ -110,6 +113,11 @@ class FusionConfig(BaseModel):
     lines_over_marks: int = Field(3, ge=1, description="... unless at least this many hits are judged at the "
                                   "prediction and min_explained of them lie on paint there: lines, however few, are "
                                   "the evidence, and marks may be an occluder's colour")
+    min_evidence_together: int = Field(8, ge=1, description="a frame without a fix whose hits (at least "
+                                       "lines_over_marks judged) and colour marks, each too few to contradict the "
+                                       "prediction alone, are together this many contradicts it when under "
+                                       "min_explained of the hits lie on paint there and under marks_explained of "
+                                       "the marks on their own colour")
     outline_may_show: bool = Field(True, description="the court's outline may show as an edge (a floor lit "
                                    "brighter than the white mask's threshold): hits on it and on no paint neither "
                                    "explain nor contradict the predicted pose")
@@ -482,6 +490,17 @@ class OdometryFusion:
     def lines_outweigh_marks(self, on_paint: int, judged: int) -> bool:
         """Whether a frame's few lines speak for the prediction over its colour marks (`lines_over_marks`)."""
         return judged >= self.config.lines_over_marks and on_paint >= self.config.min_explained * judged
+
+    def lines_and_marks_contradict(self, on_paint: int, judged: int, own: int, seen: int) -> bool:
+        """Whether a frame's few lines and few colour marks, each too few to speak alone, speak against the
+        prediction together (`min_evidence_together`): both mostly off at it, hits off paint and marks off their colour.
+        Many marks off their colour are `marks_contradict`'s, which raises no doubt (an occluder wearing the colour):
+        the robocon2025 `occluded` chain runs, fused, have a frame of 3 hits judged (1 on paint) and 54 marks (9 on
+        their colour) at a right prediction."""
+        c = self.config
+        too_few_alone = judged < c.min_hits_to_contradict and seen < c.min_marks_to_contradict
+        return too_few_alone and judged >= c.lines_over_marks and judged + seen >= c.min_evidence_together \
+            and on_paint < c.min_explained * judged and off_their_colour(own, seen, 1, c.marks_explained)
 
     def contradicts(self, on_paint: int, judged: int) -> bool:
         """Whether a frame of few hits speaks against the prediction: of the hits judged at the odometry

@@ -25,6 +25,8 @@ DATA = Path(__file__).parent / "data" / "r25_kidnap_blind_after_marks.json"
 DATA_HALF = Path(__file__).parent / "data" / "r25_kidnap_marks_carried.json"
 # Seed 6, every frame, 19.0-24.0 s: teleported at 20 s to face the red strip close up, no line in view for 0.8 s.
 DATA_STRIP = Path(__file__).parent / "data" / "r25_kidnap_facing_strip.json"
+# Seed 5, every frame, 19.0-21.5 s: teleported 2.3 m at 20 s into a view of 10 hits and 4 colour marks.
+DATA_FEW = Path(__file__).parent / "data" / "r25_kidnap_few_lines_few_marks.json"
 
 
 def _rows(text: str, columns: int) -> np.ndarray:
@@ -44,6 +46,11 @@ def replay_half():  # noqa: ANN201
 @pytest.fixture(scope="module")
 def replay_strip():  # noqa: ANN201
     return _load(DATA_STRIP)
+
+
+@pytest.fixture(scope="module")
+def replay_few():  # noqa: ANN201
+    return _load(DATA_FEW)
 
 
 def _load(path: Path):  # noqa: ANN202
@@ -138,3 +145,19 @@ def test_a_colour_strip_where_odometry_has_bare_floor_makes_the_pose_invalid(rep
     back = [(t, error) for t, valid, error, _, _ in rows if valid and t >= kidnap]
     right_before = [t for t, valid, error, _, _ in ignored if valid and t >= kidnap and error <= 0.1]
     assert back and back[0][1] <= 0.1 and right_before and back[0][0] <= right_before[0]
+
+
+def test_a_few_lines_and_a_few_marks_both_off_at_odometrys_pose_make_it_invalid(replay_few) -> None:  # noqa: ANN001
+    """Teleported 2.3 m: the first frame shows 10 hits (3 of the 7 judged on paint at odometry's pose) and 4 colour
+    marks (none on their colour there), each too few to contradict the prediction alone, and the next frame is blind.
+    Odometry, which did not feel the teleport, kept the pose valid 2.3 m off. Together they contradict it, and the
+    pose stays invalid until the robot is found again."""
+    kidnap = replay_few[0]["kidnaps_s"][1]
+    ignored = _run(replay_few, min_evidence_together=10_000)
+    assert [t for t, valid, error, _, _ in ignored if valid and error > 0.5], "the recording shows the episode"
+    rows = _run(replay_few)
+    assert any(valid for t, valid, _, _, _ in rows if t < kidnap)  # tracking before the teleport
+    assert not [(t, round(error, 2)) for t, valid, error, _, _ in rows if valid and error > 0.5]
+    # The rule only refuses frames: the track and the search after it are the same as without it.
+    assert [round(error, 6) for _, _, error, _, _ in rows] == [round(error, 6) for _, _, error, _, _ in ignored]
+    assert all(valid <= valid_ignored for (_, valid, *_), (_, valid_ignored, *_) in zip(rows, ignored))

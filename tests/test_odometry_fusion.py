@@ -234,6 +234,21 @@ def test_a_frame_of_few_hits_the_prediction_contradicts_is_not_bridged() -> None
     assert fusion.counts["contradicted"] == 1 and fusion.counts["valid_on_odometry"] == 1
 
 
+def test_few_lines_and_few_marks_contradict_together_only_when_both_are_off_and_neither_speaks_alone() -> None:
+    """Each kind of evidence too little alone (under `min_hits_to_contradict` hits judged, under
+    `min_marks_to_contradict` marks), together `min_evidence_together` or more, both mostly off at the prediction."""
+    fusion = OdometryFusion(FusionConfig(enabled=True))
+    assert fusion.lines_and_marks_contradict(on_paint=3, judged=7, own=0, seen=4)  # the seed-5 kidnap frame
+    assert not fusion.lines_and_marks_contradict(on_paint=4, judged=7, own=0, seen=4)  # half the hits on paint
+    assert not fusion.lines_and_marks_contradict(on_paint=3, judged=7, own=2, seen=4)  # half the marks on colour
+    assert not fusion.lines_and_marks_contradict(on_paint=1, judged=5, own=0, seen=2)  # 7 in all: too few
+    assert not fusion.lines_and_marks_contradict(on_paint=0, judged=2, own=0, seen=8)  # 2 hits: no lines to judge
+    assert not fusion.lines_and_marks_contradict(on_paint=1, judged=3, own=9, seen=54)  # marks speak alone
+    assert not fusion.lines_and_marks_contradict(on_paint=0, judged=9, own=0, seen=4)  # lines speak alone
+    assert not OdometryFusion(FusionConfig(enabled=True, min_evidence_together=12)).lines_and_marks_contradict(
+        on_paint=3, judged=7, own=0, seen=4)
+
+
 @pytest.fixture(scope="module")
 def robocon2025_twin():  # noqa: ANN201
     from courtloc.localizer.package import bundled_package
