@@ -205,6 +205,9 @@ class LocalizerConfig(BaseModel):
     rival_min_anisotropy: float = Field(3.0, ge=1, description="... and its position std along its weakest direction "
                                         "is at least this many times the strongest's (a view pinned both ways has no "
                                         "line to slide along; the probes cost as much as the frame's own fit)")
+    rival_carried_as_jump: bool = Field(True, description="a rival of a track odometry carried to the frame is a jump "
+                                        "there (the caller's fusion judges it against the odometry), not a split into "
+                                        "two hypotheses")
     tie_probe_m: list[float] = Field(
         default_factory=lambda: [0.6], max_length=8,
         description="a tracked fit valid on its own is also fitted from its pose moved this far either way along its "
