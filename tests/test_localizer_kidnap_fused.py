@@ -95,6 +95,18 @@ def _run(replay, **fusion_fields) -> list[tuple[float, bool, float, object, int]
     return out
 
 
+def _episode_gone(replay, **rule_off):  # noqa: ANN001, ANN003, ANN202
+    """The replay with a rule off (`rule_off`: [infer.fusion] settings) and as configured, and the second teleport's
+    time: without the rule the recording shows valid poses more than 0.5 m off, with it none, tracking before it."""
+    kidnap = replay[0]["kidnaps_s"][1]
+    ignored = _run(replay, **rule_off)
+    assert [t for t, valid, error, _, _ in ignored if valid and error > 0.5], "the recording shows the episode"
+    rows = _run(replay)
+    assert any(valid for t, valid, _, _, _ in rows if t < kidnap)  # tracking before the teleport
+    assert not [(t, round(error, 2)) for t, valid, error, _, _ in rows if valid and error > 0.5]
+    return rows, ignored, kidnap
+
+
 def test_a_decision_survives_the_bare_floor_after_it(replay) -> None:  # noqa: ANN001
     """The colour marks decide the truth over its twin by 10.4 s; the frames after it fit nothing and say nothing
     against it. They neither drop the hypotheses (odometry carries them) nor restart the confirmation, so the pose
@@ -135,12 +147,7 @@ def test_a_colour_strip_where_odometry_has_bare_floor_makes_the_pose_invalid(rep
     not feel the teleport) carried the pose on, 2.8 m off, valid. The strip's colour marks fall on bare floor there
     (1 of 256 on red; all of them at the truth): such a frame contradicts the prediction as lines it cannot explain
     would, and the pose is invalid until the robot is found again."""
-    kidnap = replay_strip[0]["kidnaps_s"][1]
-    ignored = _run(replay_strip, min_marks_to_contradict=10_000)
-    assert [t for t, valid, error, _, _ in ignored if valid and error > 0.5], "the recording shows the episode"
-    rows = _run(replay_strip)
-    assert any(valid for t, valid, _, _, _ in rows if t < kidnap)  # tracking before the teleport
-    assert not [(t, round(error, 2)) for t, valid, error, _, _ in rows if valid and error > 0.5]
+    rows, ignored, kidnap = _episode_gone(replay_strip, min_marks_to_contradict=10_000)
     # Found again (3.3 s later, once lines are in view) as soon as without the rule.
     back = [(t, error) for t, valid, error, _, _ in rows if valid and t >= kidnap]
     right_before = [t for t, valid, error, _, _ in ignored if valid and t >= kidnap and error <= 0.1]
@@ -152,12 +159,7 @@ def test_a_few_lines_and_a_few_marks_both_off_at_odometrys_pose_make_it_invalid(
     marks (none on their colour there), each too few to contradict the prediction alone, and the next frame is blind.
     Odometry, which did not feel the teleport, kept the pose valid 2.3 m off. Together they contradict it, and the
     pose stays invalid until the robot is found again."""
-    kidnap = replay_few[0]["kidnaps_s"][1]
-    ignored = _run(replay_few, min_evidence_together=10_000)
-    assert [t for t, valid, error, _, _ in ignored if valid and error > 0.5], "the recording shows the episode"
-    rows = _run(replay_few)
-    assert any(valid for t, valid, _, _, _ in rows if t < kidnap)  # tracking before the teleport
-    assert not [(t, round(error, 2)) for t, valid, error, _, _ in rows if valid and error > 0.5]
+    rows, ignored, _ = _episode_gone(replay_few, min_evidence_together=10_000)
     # The rule only refuses frames: the track and the search after it are the same as without it.
     assert [round(error, 6) for _, _, error, _, _ in rows] == [round(error, 6) for _, _, error, _, _ in ignored]
     assert all(valid <= valid_ignored for (_, valid, *_), (_, valid_ignored, *_) in zip(rows, ignored))
