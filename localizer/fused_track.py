@@ -62,42 +62,24 @@ def fused_track(predictor, fusion: Optional[OdometryFusion], hits: np.ndarray, w
         return pred, after, ""
     # lost == 0 after the step: a fit was fused, or a valid one (re)started the track.
     fused_by_vision = after is not None and after.lost == 0
-    in_view, contradicted, beyond_edge, explained = len(hits), False, False, False
-    if after is not None and not fused_by_vision and fusion._predicted_t == t \
-            and len(hits) >= fusion.config.min_hits_to_contradict:
+    in_view, contradicted, beyond_edge, explained, marks_against = len(hits), False, False, False, False
+    predicted = after is not None and not fused_by_vision and fusion._predicted_t == t
+    if predicted and len(hits) >= fusion.config.min_hits_to_contradict:
         # Lines in view are the hits judged at the prediction; those on the court's outline and on no paint
         # say nothing for or against it (`GeometricLocalizer.paint_evidence`).
         if evidence is None:
             evidence = _evidence(predictor, fusion, predictor.projected_hits(hits), after.mean[:3], after.cov)
         in_view = evidence.judged
-        contradicted = fusion.contradicts(evidence.on_paint, evidence.judged)
         beyond_edge = evidence.edge_off_paint >= fusion.config.min_hits_to_contradict
         explained = not jumped and fusion.explains(evidence.on_paint, evidence.judged)
-    # A colour strip in view where the prediction has bare floor, and no lines it explains: the robocon2025 twin's
-    # kidnaps (fused sweep, seed 6) put the robot facing the red strip close up, no line in view, and odometry's pose
-    # 2.8 m away stayed valid for 0.8 s with 1 of 256 marks on red there (all on red at the truth; its 3-9 hits on
-    # some frames, none on paint there). Only the frame is refused, no doubt is raised: an occluder wearing the colour
-    # does the same in front of a right prediction, and where its few hits lie on paint there (39 of 70 such frames in
-    # the robocon2025 `occluded` chain runs, fused) the lines win.
-    predicted = after is not None and not fused_by_vision and fusion._predicted_t == t
-    mark_evidence = predictor.mark_evidence(after.mean[:3], marks) if predicted and not explained else (0, 0)
-    marks_against = fusion.marks_contradict(*mark_evidence)
-    if predicted and not contradicted and not explained and mark_evidence[1] \
-            and len(hits) >= fusion.config.lines_over_marks:
-        # Few lines and a few marks, each too little to speak alone, both off at the prediction: the robocon2025
-        # twin's kidnap walk (fused sweep, seed 5): the first frame after the teleport showed 10 hits (3 of the 7
-        # judged on paint at odometry's pose) and 4 marks (none on their colour there, all at the truth), and
-        # odometry's pose 2.3 m off stayed valid for 2-3 frames. As a contradiction it raises doubt: the blind
-        # frame after it is not valid either.
-        if evidence is None:
+    if predicted and not explained:
+        # What the frame's few lines and colour marks say of the prediction (`OdometryFusion.against_prediction`); a
+        # handful of hits is judged only where marks are in view to weigh them against.
+        own, seen = predictor.mark_evidence(after.mean[:3], marks)
+        if evidence is None and seen and len(hits) >= fusion.config.lines_over_marks:
             evidence = _evidence(predictor, fusion, predictor.projected_hits(hits), after.mean[:3], after.cov)
-        if fusion.lines_and_marks_contradict(evidence.on_paint, evidence.judged, *mark_evidence):
-            contradicted = True
-            fusion.counts["contradicted_with_marks"] += 1
-    if marks_against and len(hits) >= fusion.config.lines_over_marks:
-        if evidence is None:
-            evidence = _evidence(predictor, fusion, predictor.projected_hits(hits), after.mean[:3], after.cov)
-        marks_against = not fusion.lines_outweigh_marks(evidence.on_paint, evidence.judged)
+        on_paint, judged = (0, 0) if evidence is None else (evidence.on_paint, evidence.judged)
+        contradicted, marks_against = fusion.against_prediction(on_paint, judged, own, seen)
     fusion.note_vision(before, after, in_view, fused_by_vision, contradicted, explained)
     valid, reason = fusion.after_frame(pred.valid, fused_by_vision, after, t, in_view, contradicted, beyond_edge,
                                        explained, marks_against)
