@@ -22,7 +22,7 @@ from courtloc.localizer import acquire, motion
 from courtloc.localizer.config import Half, LocalizerConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.fit import FitResult, fit_pose, fit_poses, quality_score
-from courtloc.localizer.hypotheses import merge_converged, placed_by_marks, with_twins
+from courtloc.localizer.hypotheses import merge_converged, placed_by_marks, with_twins, without_misplaced_newcomers
 from courtloc.localizer.marks import MarkMap, MarkPoints, off_their_colour
 from courtloc.localizer.projection import HitGeometry, ProjectedHits
 from courtloc.localizer.result import LocalizeResult
@@ -450,18 +450,23 @@ class GeometricLocalizer:
         # that would confirm a decision: a view an unpinnable pose explains better must not confirm one.
         searched_now = not live or since >= acfg.research_frames or state.agreed > 0
         if searched_now:
-            found, searched, unpinned_cost = self._search_hypotheses(hits, t)
+            # A start or a pit pose vouches for where the robot is: a view that nearly pins it seeds hypotheses then.
+            declared = prior is not None and prior.pose is not None and prior.source in ("start", "pit")
+            found, searched, unpinned_cost = self._search_hypotheses(hits, t, near_pinned=declared)
             live += found
             since = 0
         live = merge_converged(with_twins(live) if self.symmetric else live, acfg)
         behind = acquire.frames_behind([h for _, h in live], [res.fit.cost for res, _ in live], acfg)
         live = [(res, replace(h, behind=b)) for (res, h), b in zip(live, behind) if b < acfg.tie_drop_frames]
+        points = marks() if self.mark_map is not None and marks is not None else None
+        seen = [] if points is None or not len(points) else [self.mark_map.evidence(h.pose, points) for _, h in live]
+        if seen:
+            live, seen = without_misplaced_newcomers(live, seen, len(points), acfg)
         kept = acquire.within_cap([h for _, h in live], acfg)
         overflow = any(h.behind == 0 for i, (_, h) in enumerate(live) if i not in kept)
         live = [live[i] for i in kept]
-        points = marks() if self.mark_map is not None and marks is not None else None
-        if points is not None and len(points):
-            seen = [self.mark_map.evidence(h.pose, points) for _, h in live]
+        if seen:
+            seen = [seen[i] for i in kept]
             live = [(res, replace(h, marks=tuple(a + b for a, b in zip(h.marks, ev))))
                     for (res, h), ev in zip(live, seen)]
             if len(points) >= acfg.marks_min and all(off_their_colour(own, len(points), acfg.marks_min, 0.5)
@@ -591,9 +596,8 @@ class GeometricLocalizer:
         evidence = self.paint_evidence(hits, state.mean[:3], state.cov[:3, :3])
         return evidence.on_paint >= acfg.carry_min_explained * evidence.judged
 
-    def _search_hypotheses(self, hits: ProjectedHits,
-                           t: float | None) -> tuple[list[tuple[LocalizeResult, acquire.Hypothesis]], FitResult | None,
-                                                     float | None]:
+    def _search_hypotheses(self, hits: ProjectedHits, t: float | None, near_pinned: bool = False
+                           ) -> tuple[list[tuple[LocalizeResult, acquire.Hypothesis]], FitResult | None, float | None]:
         """Every valid global-search fit within the tie of the best, and each one's mirror twin; the
         lowest-cost fit of all (what a frame without hypotheses answers, invalid); and the cost of an invalid fit
         that explains the view better than every valid one found (None: a valid one is the best)."""
@@ -608,10 +612,23 @@ class GeometricLocalizer:
         # that fit well: the latter are never decided, they keep a near-miss elsewhere from being decided.
         ok = sorted((f for f in firsts if f.valid or (f.n_inliers >= q.min_inliers and f.inlier_ratio >= 0.5)),
                     key=lambda f: f.cost)
-        if not any(f.valid for f in ok):
+        if not ok:
             return [], lowest, None
+        any_valid = any(f.valid for f in ok)
         limit = acquire.tie_limit(ok[0].cost, acfg)
         ok = [f for f in ok if f.cost <= limit][:acfg.max_hypotheses]
+        # No fit valid on its own, but one within the tie pins the position nearly as well: its hypotheses start
+        # unpinned, and the frames that follow pin them (the robocon2025 twin's kidnap start, fused: 24 frames of
+        # views whose fit at the truth had a 0.08-0.12 m std searched and found nothing, 0.8 s).
+        near = acfg.search_near_pinned_std_m if near_pinned else 0.0
+        unpinned_cost = _unpinned_cost(ok, any_valid, near)
+        if not any_valid:
+            # Only those: fits free along the lines in view would fill the hypotheses' cap, each one fitting every
+            # later frame of such a view, and nothing would be searched or decided again (the held-out seed
+            # recording: 2,090 frames ambiguous after its track was lost).
+            ok = [f for f in ok if f.position_std_m <= near]
+            if not ok:
+                return [], lowest, None
         twins = self._fit_starts(hits, np.array([mirror(f.pose) for f in ok]))
         fits = sorted([f for f in ok + twins if f.cost <= limit and (f.valid or f.inlier_ratio >= 0.5)],
                       key=lambda f: f.cost)
@@ -619,7 +636,7 @@ class GeometricLocalizer:
         found = [(LocalizeResult(pose=f.pose, fit=f, mode="global"),
                   acquire.Hypothesis(motion.start(f.pose, f.covariance, t, mcfg), f.pose.copy(), t, _position_cov(f),
                                      f.valid)) for f in fits]
-        return found, lowest, None if ok[0].valid else ok[0].cost
+        return found, lowest, unpinned_cost
 
     def _nearest(self, hypotheses: list[acquire.Hypothesis], prior: acquire.Prior | None, t: float | None) -> int:
         """The hypothesis an undecided frame answers (invalid): nearest a pose prior, else the best fit."""
@@ -706,6 +723,19 @@ class GeometricLocalizer:
         fit = replace(fit, pose=pose)
         alternatives = [mirror(pose)] if cfg.symmetry == "both" else []
         return LocalizeResult(pose=pose, fit=fit, mode=mode, alternatives=alternatives)
+
+
+def _unpinned_cost(fits: list[FitResult], any_valid: bool, near_pinned_std_m: float) -> float | None:
+    """The cost of the best of `fits` (the search's within the tie, by cost) when it is invalid and explains the view
+    better than every valid one; None when a valid one is the best. When the search found no valid fit (`any_valid`
+    False: seeded by nearly pinned ones), an unpinnable fit's cost only when it is below every nearly pinned one's."""
+    if fits[0].valid:
+        return None
+    if any_valid:
+        return fits[0].cost
+    loose = [f.cost for f in fits if f.position_std_m > near_pinned_std_m]
+    near = [f.cost for f in fits if f.position_std_m <= near_pinned_std_m]
+    return loose[0] if loose and (not near or loose[0] < near[0]) else None
 
 
 def _same_decision(decided: np.ndarray, pose: np.ndarray) -> bool:

@@ -9,7 +9,7 @@ import numpy as np
 
 from courtloc.localizer import acquire, motion
 from courtloc.localizer.config import AcquireConfig
-from courtloc.localizer.marks import MarkMap, MarkPoints
+from courtloc.localizer.marks import MarkMap, MarkPoints, off_their_colour
 from courtloc.localizer.result import LocalizeResult
 from courtloc.localizer.symmetry import mirror
 
@@ -43,6 +43,25 @@ def placed_by_marks(live: Live, points: MarkPoints, seen: list[tuple[int, int]],
     offsets = np.arange(-MARKS_LINE_REACH_M, MARKS_LINE_REACH_M + 1e-9, MARKS_LINE_STEP_M)
     return [(res, h) for res, h in live
             if h.pinned or not _ruled_out_by_marks(h, explaining, offsets, points, cfg, mark_map, area_half_extent_m)]
+
+
+def without_misplaced_newcomers(live: Live, seen: list[tuple[int, int]], n_marks: int,
+                                cfg: AcquireConfig) -> tuple[Live, list[tuple[int, int]]]:
+    """Without the hypotheses first seen this frame that put its colour marks off their colour, when one tracked
+    before, which the marks speak for (`acquire.colour_verdict`), puts them on it; `seen` filtered alike.
+
+    A newcomer has no evidence but this frame's fit, and this frame's marks say it is not the robot where they say
+    the tracked one is. Kept, each confirming frame's search proposed such places again (the robocon2025 twin's
+    kidnaps, fused: 70 marks of the strip in view, none on any colour at four fits 5 m away, all on their own colour
+    at a hypothesis tracked 10 frames with 700 for it), and each held the decision for the frames they lived."""
+    def placed(own: int) -> bool:
+        return not off_their_colour(own, n_marks, cfg.marks_min, 0.5)
+
+    if n_marks < cfg.marks_min or not any(h.frames > 0 and acquire.colour_verdict(h, cfg) == "for" and placed(own)
+                                          for (_, h), (own, _) in zip(live, seen)):
+        return live, seen
+    keep = [i for i, ((_, h), (own, _)) in enumerate(zip(live, seen)) if h.frames > 0 or placed(own)]
+    return [live[i] for i in keep], [seen[i] for i in keep]
 
 
 def _ruled_out_by_marks(unpinned: acquire.Hypothesis, pinned: list[acquire.Hypothesis], offsets: np.ndarray,
@@ -82,9 +101,12 @@ def with_twins(live: Live) -> Live:
 
 
 def merge_converged(live: Live, cfg: AcquireConfig) -> Live:
-    """Hypotheses that converged on one pose are one (the better-fitting one stays)."""
+    """Hypotheses that converged on one pose are one: a pinned one before an unpinned one, then the better-fitting
+    one. An unpinned fit of a pinned hypothesis's place (a confirming frame's search finding its basin again, free along
+    the lines in view) is no better estimate of it: one known to 4 cm became such a fit and slid 1.3 m along the lines
+    in the next frame (the robocon2025 twin's kidnap, fused)."""
     out: Live = []
-    for res, h in sorted(live, key=lambda rh: (rh[1].state.lost, rh[0].fit.cost)):
+    for res, h in sorted(live, key=lambda rh: (rh[1].state.lost, not rh[1].pinned, rh[0].fit.cost)):
         for k, (kept_res, kept) in enumerate(out):
             if acquire.same_pose(h.pose, kept.pose, cfg):
                 # Both saw the same frames' marks (a twin remade from its mirror has seen none yet).

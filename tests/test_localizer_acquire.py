@@ -350,3 +350,16 @@ def test_a_frame_whose_search_is_blind_to_the_view_confirms_no_decision() -> Non
         wrong_valid += pred.valid and math.hypot(pred.x - frame["truth"][0], pred.y - frame["truth"][1]) > 0.5
     assert "confirming" in statuses, "the recorded frames no longer reach a decision: the test shows nothing"
     assert wrong_valid == 0
+
+
+def test_marks_count_the_motion_from_where_a_hypothesis_was_first_pinned() -> None:
+    """A hypothesis first seen unpinned (free along the lines in view) slides along them while the view pins it: that
+    is no motion of the robot. The marks decide once it has moved from its first pinned sighting, not from its origin
+    (the robocon2025 twin's kidnap, fused: a fit 13 m off, at the far end of the strip the robot faced, slid 0.5 m
+    from its unpinned origin in four frames and was decided)."""
+    its_twin = replace(_hyp(mirror(POSE)), marks=(0, CFG.marks_strong))
+    slid = replace(_hyp(POSE), origin=POSE - [1.0, 0.0, 0.0], marks=(CFG.marks_strong, 0),
+                   pinned_sighting=acquire.Sighting(POSE - [0.05, 0.0, 0.0], 0.0))
+    assert acquire.decide([slid, its_twin], None, None, 0.0, CFG, 0.3, court_marks=True).index is None
+    tracked = replace(slid, pinned_sighting=acquire.Sighting(POSE - [CFG.marks_motion_m, 0.0, 0.0], 0.0))
+    assert acquire.decide([tracked, its_twin], None, None, 0.0, CFG, 0.3, court_marks=True).index == 0
