@@ -14,12 +14,13 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    usable fit of a hypothesis that odometry carried to it is no loss while the hypothesis is known to
    `carry_max_std_m` and the frame's hits do not speak against it (`carry_min_explained` of those judged at
    its pose on paint): bare floor says nothing, and odometry knows where each hypothesis went. With a start or
-   pit pose (a declared one), a search whose fits are none valid still seeds hypotheses from those that pin the
-   position to `search_near_pinned_std_m` (unpinned; the frames that follow pin them). Hypotheses that converge
-   merge (a pinned one's state stays: an unpinned fit of its place is no better estimate). On a court with colour
-   marks, a hypothesis first seen this frame that puts the frame's marks off their colour is dropped when one
-   tracked before, which the marks speak for, puts them on it (`hypotheses.without_misplaced_newcomers`). Beyond
-   `max_hypotheses` those behind the tie, then the unpinned, then the newest are cut
+   pit pose (a declared one) that odometry carries, a search whose fits are none valid still seeds hypotheses
+   from those that pin the position to `search_near_pinned_std_m` (unpinned; the frames that follow pin them).
+   Hypotheses that converge merge (a pinned one's state stays: an unpinned fit of its place is no better
+   estimate). On a court with colour marks, a hypothesis first seen this frame that puts the frame's marks off
+   their colour is dropped when one tracked before, which the marks speak for, puts them on it
+   (`hypotheses.without_misplaced_newcomers`). Beyond `max_hypotheses` those behind the tie, then the unpinned,
+   then the newest are cut
    (`within_cap`); a frame that cut a candidate decides nothing. No hypothesis left: search again. While
    undecided the court is searched again every `research_frames` frames, and on the next frame when the
    frame shows colour marks (`marks_min` or more) that no hypothesis puts on their own colour: the robot is

@@ -176,9 +176,10 @@ class AcquireConfig(BaseModel):
     marks_strong: int = Field(100, ge=1, description="... half as far (and half the turn) for one with at least this "
                               "many marks for it: a kidnapped robot that saw the marks for 0.3 s and then bare floor "
                               "waited seconds, and the misread view the motion rule guards against showed 12")
-    search_near_pinned_std_m: float = Field(0.15, ge=0, description="with a start or pit pose, a search whose fits "
-                                            "are none valid still seeds hypotheses (unpinned) from those that pin the "
-                                            "position to this std (0: never); tracked, a few such frames pin them")
+    search_near_pinned_std_m: float = Field(0.15, ge=0, description="with a start or pit pose odometry carries, a "
+                                            "search whose fits are none valid still seeds hypotheses (unpinned) from "
+                                            "those that pin the position to this std (0: never); tracked, a few such "
+                                            "frames pin them")
     marks_decided_share: float = Field(0.5, ge=0, le=1, description="a frame showing marks_min marks or more of "
                                        "which the decided hypothesis puts fewer than this share on their own colour "
                                        "undoes the decision's count (0: never)")

@@ -100,13 +100,19 @@ def with_twins(live: Live) -> Live:
     return live + twins
 
 
-def merge_converged(live: Live, cfg: AcquireConfig) -> Live:
-    """Hypotheses that converged on one pose are one: a pinned one before an unpinned one, then the better-fitting
-    one. An unpinned fit of a pinned hypothesis's place (a confirming frame's search finding its basin again, free along
-    the lines in view) is no better estimate of it: one known to 4 cm became such a fit and slid 1.3 m along the lines
-    in the next frame (the robocon2025 twin's kidnap, fused)."""
+def merge_converged(live: Live, cfg: AcquireConfig, carried: bool = False) -> Live:
+    """Hypotheses that converged on one pose are one: the better-fitting one stays, and when odometry carries the
+    hypotheses (`carried`) a pinned one before an unpinned one. A search's unpinned fit of a carried, pinned
+    hypothesis's place (a confirming frame's search finding its basin again, free along the lines in view) is no
+    better estimate of it: one known to 4 cm became such a fit and slid 1.3 m along the lines in the next frame (the
+    robocon2025 twin's kidnap, fused). Without odometry a fresh fit restarting the constant-velocity state is what
+    confirms a start quickly (kept so, the robocon2025 twin's occluded start took 1.5 s instead of 0.3)."""
     out: Live = []
-    for res, h in sorted(live, key=lambda rh: (rh[1].state.lost, not rh[1].pinned, rh[0].fit.cost)):
+
+    def order(rh: tuple[LocalizeResult, acquire.Hypothesis]) -> tuple:
+        return (rh[1].state.lost, carried and not rh[1].pinned, rh[0].fit.cost)
+
+    for res, h in sorted(live, key=order):
         for k, (kept_res, kept) in enumerate(out):
             if acquire.same_pose(h.pose, kept.pose, cfg):
                 # Both saw the same frames' marks (a twin remade from its mirror has seen none yet).

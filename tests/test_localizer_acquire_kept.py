@@ -93,21 +93,23 @@ def _hypothesis(pose: tuple[float, float, float], std_m: float, frames: int, mar
             acquire.Hypothesis(state, pose_arr.copy(), 1.0, pinned=std_m <= 0.08, marks=marks, frames=frames))
 
 
-def test_a_pinned_hypothesis_found_again_unpinned_keeps_its_state() -> None:
-    """The same place twice, tracked (pinned, 4 cm) and found by this frame's search at a lower cost but free along a
-    line: one hypothesis, the tracked one's state and evidence. Two pinned ones: the better fit, as ever (a track that
-    coasted off through a fast turn gives way to a fresh valid fit of its place)."""
+def test_a_carried_pinned_hypothesis_found_again_unpinned_keeps_its_state() -> None:
+    """The same place twice, tracked (pinned, 4 cm, carried by odometry) and found by this frame's search at a lower
+    cost but free along a line: one hypothesis, the tracked one's state and evidence. Two pinned ones: the better fit,
+    as ever (a track that coasted off through a fast turn gives way to a fresh valid fit of its place); and without
+    odometry the better fit too (a fresh fit restarts the constant-velocity state)."""
     cfg = AcquireConfig()
     tracked = _hypothesis((0.62, -0.70, 1.93), 0.04, frames=6, marks=(495, 0), cost=0.008)
     fresh = _hypothesis((0.63, -0.72, 1.93), 1e6, frames=0, cost=0.006)
     for live in ([tracked, fresh], [fresh, tracked]):
-        merged = merge_converged(live, cfg)
+        merged = merge_converged(live, cfg, carried=True)
         assert len(merged) == 1
         h = merged[0][1]
         assert h.state is tracked[1].state and h.marks == (495, 0) and h.frames == 6
+        assert merge_converged(live, cfg)[0][1].state is fresh[1].state
     fresh_valid = _hypothesis((0.60, -0.70, 1.93), 0.03, frames=0, cost=0.004)
     for live in ([tracked, fresh_valid], [fresh_valid, tracked]):
-        assert merge_converged(live, cfg)[0][1].state is fresh_valid[1].state
+        assert merge_converged(live, cfg, carried=True)[0][1].state is fresh_valid[1].state
 
 
 def test_newcomers_that_put_the_marks_off_their_colour_go_when_a_tracked_one_places_them() -> None:
@@ -141,10 +143,10 @@ def test_search_without_a_valid_fit_reports_an_unpinnable_rival_only_below_the_n
 
 
 def test_only_a_declared_pose_lets_nearly_pinned_fits_seed_hypotheses() -> None:
-    """A frame of the start whose fits are none valid: with a start (or pit) pose the search seeds unpinned hypotheses
-    from the nearly pinned ones, and only from those; after a lost track or a kidnap it seeds none (a nearly pinned
-    fit at the far end of a strip, pinned by a few frames of the filter, was decided by the strip's marks 13 m off:
-    the robocon2025 twin's randomised walk, vision only)."""
+    """A frame of the start whose fits are none valid: with a start (or pit) pose that odometry carries the search
+    seeds unpinned hypotheses from the nearly pinned ones, and only from those; after a lost track or a kidnap it
+    seeds none (a nearly pinned fit at the far end of a strip, pinned by a few frames of the filter, was decided by
+    the strip's marks 13 m off: the robocon2025 twin's randomised walk, vision only), nor without odometry."""
     run = _load(START)
     frame = run.frames[5]
     predictor = load_predictor(bundled_package(run.court, run.camera))
@@ -159,7 +161,13 @@ def test_only_a_declared_pose_lets_nearly_pinned_fits_seed_hypotheses() -> None:
     assert loc._search_hypotheses(projected, 0.0, near_pinned=False)[0] == []
     marks = np.asarray(frame.marks, np.int16).reshape(-1, 3)
     width, height = run.size
-    for source, seeded in (("start", True), ("pit", True), ("track", False)):
-        prior = acquire.Prior(source, pose=np.asarray(frame.truth), std_m=0.5, t=0.0)
+    truth = np.asarray(frame.truth)
+
+    def carried(t: float) -> tuple[np.ndarray, float, float]:  # odometry's answer: where the prior went by t
+        return truth, 0.1, 0.05
+
+    for source, carry, seeded in (("start", carried, True), ("pit", carried, True), ("start", None, False),
+                                  ("track", carried, False)):
+        prior = acquire.Prior(source, pose=truth, std_m=0.5, t=0.0, carry=carry)
         pose, _ = predictor.track(hits, width, height, acquire.Acquiring(prior=prior), t=0.0, marks=marks)
-        assert (pose.reason != "searching") is seeded, (source, pose.reason)
+        assert (pose.reason != "searching") is seeded, (source, carry, pose.reason)

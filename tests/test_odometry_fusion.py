@@ -239,7 +239,8 @@ def test_few_lines_and_few_marks_contradict_together_only_when_both_are_off_and_
     `min_marks_to_contradict` marks), together `min_evidence_together` or more, both mostly off at the prediction."""
     fusion = OdometryFusion(FusionConfig(enabled=True))
     assert fusion.lines_and_marks_contradict(on_paint=3, judged=7, own=0, seen=4)  # the seed-5 kidnap frame
-    assert not fusion.lines_and_marks_contradict(on_paint=4, judged=7, own=0, seen=4)  # half the hits on paint
+    assert fusion.lines_and_marks_contradict(on_paint=3, judged=6, own=0, seen=4)  # ... a track a few frames older
+    assert not fusion.lines_and_marks_contradict(on_paint=4, judged=7, own=0, seen=4)  # more than half on paint
     assert not fusion.lines_and_marks_contradict(on_paint=3, judged=7, own=2, seen=4)  # half the marks on colour
     assert not fusion.lines_and_marks_contradict(on_paint=1, judged=5, own=0, seen=2)  # 7 in all: too few
     assert not fusion.lines_and_marks_contradict(on_paint=0, judged=2, own=0, seen=8)  # 2 hits: no lines to judge
