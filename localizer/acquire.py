@@ -20,11 +20,10 @@ court repeats parallel lines). The rule, one frame at a time while acquiring:
    estimate). On a court with colour marks, a hypothesis first seen this frame that puts the frame's marks off
    their colour is dropped when one tracked before, which the marks speak for, puts them on it
    (`hypotheses.without_misplaced_newcomers`). Beyond `max_hypotheses` those behind the tie, then the unpinned,
-   then the newest are cut
-   (`within_cap`); a frame that cut a candidate decides nothing. No hypothesis left: search again. While
-   undecided the court is searched again every `research_frames` frames, and on the next frame when the
-   frame shows colour marks (`marks_min` or more) that no hypothesis puts on their own colour: the robot is
-   none of them.
+   then the newest are cut (`within_cap`); a frame that cut a candidate decides nothing. No hypothesis left:
+   search again. While undecided the court is searched again every `research_frames` frames, and on the next
+   frame when the frame shows colour marks (`marks_min` or more) that no hypothesis puts on their own colour:
+   the robot is none of them.
 2. Evidence. A prior says where the robot is: the configured start (a pose with a std, or a half),
    a pose set by the pit, or the last pose of a lost track (with its time: the robot moved since).
    A pose prior scores each hypothesis by its Mahalanobis distance d^2 (position std grown by

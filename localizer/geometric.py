@@ -604,7 +604,9 @@ class GeometricLocalizer:
                            ) -> tuple[list[tuple[LocalizeResult, acquire.Hypothesis]], FitResult | None, float | None]:
         """Every valid global-search fit within the tie of the best, and each one's mirror twin; the
         lowest-cost fit of all (what a frame without hypotheses answers, invalid); and the cost of an invalid fit
-        that explains the view better than every valid one found (None: a valid one is the best)."""
+        that explains the view better than every valid one found (None: a valid one is the best). `near_pinned`
+        (a declared pose odometry carries): when no fit is valid, those pinned to `search_near_pinned_std_m` seed
+        unpinned hypotheses instead of none."""
         acfg = self.config.acquire
         candidates = self.search.candidates(hits)
         if not candidates:
