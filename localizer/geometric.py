@@ -23,7 +23,7 @@ from courtloc.localizer.config import Half, LocalizerConfig
 from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.fit import FitResult, fit_pose, fit_poses, quality_score
 from courtloc.localizer.hypotheses import merge_converged, placed_by_marks, with_twins, without_misplaced_newcomers
-from courtloc.localizer.marks import MarkMap, MarkPoints, off_their_colour
+from courtloc.localizer.marks import MarkMap, MarkPoints, off_their_colour, places
 from courtloc.localizer.projection import HitGeometry, ProjectedHits
 from courtloc.localizer.result import LocalizeResult
 from courtloc.localizer.search import CoarseSearch
@@ -473,8 +473,7 @@ class GeometricLocalizer:
             seen = [seen[i] for i in kept]
             live = [(res, replace(h, marks=tuple(a + b for a, b in zip(h.marks, ev))))
                     for (res, h), ev in zip(live, seen)]
-            if len(points) >= acfg.marks_min and all(off_their_colour(own, len(points), acfg.marks_min, 0.5)
-                                                     for own, _ in seen):
+            if not any(places(own, len(points), acfg.marks_min) for own, _ in seen):
                 # Colour marks in view that no hypothesis puts on their own colour: the robot is none of them
                 # (or the marks are an occluder's), so the court is searched again next frame, not research_frames
                 # later (the robocon2025 twin's first kidnap, replayed: the truth, showing 66 marks, was found

@@ -9,7 +9,7 @@ import numpy as np
 
 from courtloc.localizer import acquire, motion
 from courtloc.localizer.config import AcquireConfig
-from courtloc.localizer.marks import MarkMap, MarkPoints, off_their_colour
+from courtloc.localizer.marks import MarkMap, MarkPoints, places
 from courtloc.localizer.result import LocalizeResult
 from courtloc.localizer.symmetry import mirror
 
@@ -55,10 +55,10 @@ def without_misplaced_newcomers(live: Live, seen: list[tuple[int, int]], n_marks
     kidnaps, fused: 70 marks of the strip in view, none on any colour at four fits 5 m away, all on their own colour
     at a hypothesis tracked 10 frames with 700 for it), and each held the decision for the frames they lived."""
     def placed(own: int) -> bool:
-        return not off_their_colour(own, n_marks, cfg.marks_min, 0.5)
+        return places(own, n_marks, cfg.marks_min)
 
-    if n_marks < cfg.marks_min or not any(h.frames > 0 and acquire.colour_verdict(h, cfg) == "for" and placed(own)
-                                          for (_, h), (own, _) in zip(live, seen)):
+    if not any(h.frames > 0 and acquire.colour_verdict(h, cfg) == "for" and placed(own)
+               for (_, h), (own, _) in zip(live, seen)):
         return live, seen
     keep = [i for i, ((_, h), (own, _)) in enumerate(zip(live, seen)) if h.frames > 0 or placed(own)]
     return [live[i] for i in keep], [seen[i] for i in keep]

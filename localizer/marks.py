@@ -48,6 +48,13 @@ def off_their_colour(own: int, seen: int, min_marks: int, share: float) -> bool:
     return seen >= min_marks and own < share * seen
 
 
+def places(own: int, seen: int, min_marks: int) -> bool:
+    """Whether a frame's colour marks leave a pose possible: under `min_marks` of them on the floor (`seen`) say
+    nothing, else at least half lie on their own colour there (`own`). Acquisition judges its hypotheses by it: the
+    search-again rule (none is placed) and newcomers beside a tracked hypothesis (`hypotheses.py`)."""
+    return not off_their_colour(own, seen, min_marks, 0.5)
+
+
 class MarkMap:
     """Which of the court's marks is painted where, on a top-down grid."""
 
