@@ -163,7 +163,7 @@ class Pose(Strict):
     covariance: list[float] = Field(default_factory=list, max_length=9,
                                     description="row-major 3x3 covariance of (x, y, yaw) when the model tracks; [] else")
     # Which odometry the answer was fused with, so a logged run replays exactly (openpilot's process replay): the
-    # stage's inbox keeps only the newest message per topic, so the messages published are not all the ones taken in.
+    # stage's inbox keeps only the newest odometry message, so the messages published are not all the ones taken in.
     odometry_seqs: list[int] = Field(default_factory=list, max_length=ODOMETRY_SEQS_MAX,
                                      description="source_seq of each odometry message the stage took in since its "
                                      "previous answer, in order (fusion on; the newest ODOMETRY_SEQS_MAX)")

@@ -2,9 +2,10 @@
 
 A stage subclasses `Service` and implements `on_message` (consumers) or `produce` (sources). The
 runtime owns everything else: the Zenoh session (opened with back-off, always closed), a liveliness
-token, publishers with the table's QoS, latest-only subscriptions handed to the worker thread,
-decoding with per-topic rejection counts, the stage's controls (queryables of the services table,
-answered by `on_control` on their own thread), a health message every second, and SIGINT/SIGTERM.
+token, publishers with the table's QoS, subscriptions handed to the worker thread through a bounded inbox
+(each topic as deep as the table says), decoding with per-topic rejection counts, the stage's controls
+(queryables of the services table, answered by `on_control` on their own thread), a health message every
+second, and SIGINT/SIGTERM.
 """
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ from pydantic import BaseModel
 from courtloc.common import codec
 from courtloc.common.bus import ZenohConfig, declare_publisher, open_session, watch_router_identity
 from courtloc.common.control_server import ControlServer
-from courtloc.common.inbox import Delivery, LatestInbox
+from courtloc.common.inbox import Delivery, Inbox
 from courtloc.common.limits import clip_text
 from courtloc.common.messages import Header, Health
 from courtloc.common.services_table import CONTROLS, HEALTH_TOPICS, SERVICES, TOPICS, Control, Topic, liveliness_key
@@ -48,7 +49,7 @@ class Service:
         self.stop_event = threading.Event()
         self.session: zenoh.Session | None = None
         self._publishers: dict[str, zenoh.Publisher] = {}
-        self._inbox = LatestInbox()
+        self._inbox = Inbox({path: TOPICS[path].inbox_depth for path in self.spec.inputs})
         self._started = time.monotonic()
         self._rate_log = RateLimitedLog(self.log)
         self.health_period_s = HEALTH_PERIOD_S  # the deployment's health_period_s (stage_main sets it)

@@ -1,6 +1,6 @@
 """The transport baseline: one 640x480 BGR frame handed along RELAY_HOPS processes doing trivial work.
 
-Each hop uses the same parts as a stage (session helper, table QoS, latest-only inbox, a worker thread,
+Each hop uses the same parts as a stage (session helper, table QoS, an inbox as deep as the chain's, a worker thread,
 header stamps) and moves the frame the way the chain does: the source writes it once into its shared-memory
 pool like the camera, every hop copies the pixels out once like preprocess and writes them into its own
 pool to pass them on. So the difference to the real chain is the real work.
@@ -21,7 +21,7 @@ import numpy as np
 import zenoh
 
 from courtloc.common.bus import ZenohConfig, declare_publisher, open_session
-from courtloc.common.inbox import LatestInbox
+from courtloc.common.inbox import Inbox
 from courtloc.common.messages import Frame, Header
 from courtloc.common.realtime import RealtimeConfig, apply_realtime
 from courtloc.common.services_table import RELAY_HOPS, RELAY_TOPICS, SERVICES
@@ -52,7 +52,7 @@ def _source(session: zenoh.Session, seconds: float, fps: float) -> None:
 def _hop(session: zenoh.Session, hop: int, seconds: float) -> list[float]:
     """Forward (or, on the last hop, measure) every frame of the previous hop until `seconds` pass."""
     last = hop == RELAY_HOPS - 1
-    inbox = LatestInbox()
+    inbox = Inbox({"frame": RELAY_TOPICS[hop - 1].inbox_depth})  # kept as deep as the chain keeps its frames
     subscriber = session.declare_subscriber(RELAY_TOPICS[hop - 1].key(ROBOT),
                                             lambda sample: inbox.put("frame", sample.payload))
     publisher = None if last else ShmFramePublisher(declare_publisher(session, RELAY_TOPICS[hop], ROBOT), POOL_BYTES)

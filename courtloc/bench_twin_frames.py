@@ -1,6 +1,6 @@
 """The frames a twin run's infer stage answered, kept to replay that run in one process (`bench twin --keep-frames`).
 
-Through the chain, which frames the infer stage reaches (its latest-only inbox drops those it had not reached) and
+Through the chain, which frames the infer stage reaches (its bounded inbox drops those it had not reached) and
 their capture times are the chain's own; the sweep's in-process walks choose theirs. A valid-and-wrong pose seen once
 through the chain (the robocon2025 suite, vision only, `drive`, twenty-fifth session) could not be traced for want of
 its inputs. The kept file holds, in order, every frame the stage answered with its capture stamps, hits and colour
@@ -57,7 +57,7 @@ class KeptRun(BaseModel):
     fusion: Optional[FusionConfig] = Field(None, description="the infer stage's [infer.fusion] (fused runs)")
     size: list[int] = Field(description="(width, height) of the frames")
     dropped: int = Field(0, description="frames before the run's last answer whose edges the bench saw and the infer "
-                         "stage did not answer (its latest-only inbox replaced them)")
+                         "stage did not answer (its bounded inbox pushed them out)")
     odometry_unkept: int = Field(0, description="odometry messages the stage took in that the bench did not see (a "
                                  "replay of a fused run with any is not the run)")
     frames: list[KeptFrame]

@@ -149,7 +149,7 @@ def test_preprocess_process_counts_every_hostile_frame_by_reason_and_keeps_worki
         client.wait_alive("preprocess")
         client.wait_subscribed("camera/frame")
         # Counts so far, from a health report sent after the stage started; then one payload at a time (the
-        # inbox keeps only the latest), each counted under its reason before the next is sent.
+        # inbox is bounded), each counted under its reason before the next is sent.
         counted = client.wait_for("preprocess/health").detail
         expected = {f"reject.{r}": counted.get(f"reject.{r}", 0) for r, _ in hostile}
         for reason, payload in hostile:
@@ -195,7 +195,7 @@ def test_handler_exceptions_are_counted_and_logged_rate_limited(tmp_path: Path) 
             bad = good.model_copy(update={"header": good.header.model_copy(update={"seq": seq}),
                                           "width": 1, "height": 1, "crop_top": 0})
             client.put_raw("preprocess/edges", codec.encode(bad))
-        # latest-only inbox: each one was either taken (and must be rejected) or replaced (dropped)
+        # bounded inbox: each one was either taken (and must be rejected) or pushed out (dropped)
         health = client.wait_for("infer/health", lambda h: h.frames_in + h.dropped >= n)
         assert health.detail.get("reject.handler_error", 0) == health.rejected == health.frames_in >= 1
         assert stage.alive()

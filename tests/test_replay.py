@@ -136,7 +136,7 @@ providers = ["cpu"]
 
         # 2. The edges the live infer consumed, through a fresh infer. Infer tracks (each pose starts from
         # the previous valid one), so it gets the live stage's input sequence from its cold start: the
-        # recorded edges that produced a recorded pose (a latest-only stage may have skipped some).
+        # recorded edges that produced a recorded pose (a stage's bounded inbox may have skipped some).
         # --restamp: the edges arrive as live ones, so the freshness check passes as it did live.
         # The fresh infer starts as the live one did: from the configured start, not from the pose the live
         # stage saved for a restart (a different prior acquires differently).
@@ -162,7 +162,7 @@ providers = ["cpu"]
             a, b = expected_poses[seq], got[seq]
             yaw_gap = 0.0 if a.yaw is None and b.yaw is None else abs((a.yaw or 0.0) - (b.yaw or 0.0))
             return max(abs(a.x - b.x), abs(a.y - b.y), yaw_gap)
-        # Exact equality is not the bar here: a latest-only stage may skip an input when two arrive close
+        # Exact equality is not the bar here: a stage may skip an input when several arrive close
         # together (live or replayed), and the tracker then refines from a slightly different prior. The restamp
         # keeps the recorded time steps (one shift at the recorded speed), so otherwise the poses agree to
         # rounding (1e-12 m measured, with the two cores busy; 1-6 mm when each message was stamped as sent).

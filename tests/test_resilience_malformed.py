@@ -1,8 +1,8 @@
 """10,000 malformed payloads on every input topic of every stage that runs here: no crash, every one counted.
 
-The runtime's inbox is latest-only: a payload that arrives while the worker is busy replaces the
-waiting one and is counted as `dropped`; a payload the worker takes and cannot decode is counted as
-`rejected`. So for a burst of N bad payloads the stage's health must settle at
+The runtime's inbox is bounded per topic: a payload that arrives while the worker is busy and the topic's
+waiting payloads fill its depth pushes out the oldest, counted as `dropped`; a payload the worker takes and
+cannot decode is counted as `rejected`. So for a burst of N bad payloads the stage's health must settle at
     rejected == frames_in  (everything taken was refused)   and   rejected + dropped == N.
 The burst is published with BLOCK congestion control from one session so zenoh loses none in
 transit; nothing waits per message.

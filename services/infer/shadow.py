@@ -11,7 +11,7 @@ from typing import Callable
 import numpy as np
 
 from courtloc.common.control import ShadowStats
-from courtloc.common.inbox import LatestInbox
+from courtloc.common.inbox import Inbox
 from courtloc.common.messages import Edges, Pose
 from courtloc.localizer.tracking import Tracker
 from courtloc.world.angles import wrap_angle
@@ -23,7 +23,7 @@ class ShadowRunner:
         self.model = model
         self._publish = publish
         self._make_pose = make_pose
-        self._inbox = LatestInbox()
+        self._inbox = Inbox()  # latest only: a candidate that falls behind skips frames, never delays them
         self._stop = threading.Event()
         self._diffs: deque[float] = deque(maxlen=1000)
         self._yaw_diffs: deque[float] = deque(maxlen=1000)
