@@ -38,6 +38,7 @@ from courtloc.bench_twin_metrics import (
     blackout_metrics,
     kidnap_metrics,
     twin_metrics,
+    window_metrics,
 )
 from courtloc.bench_twin_views import view_judge, with_views
 from courtloc.cli_errors import RUN_EXIT, UsageError
@@ -96,7 +97,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fusion", choices=("auto", "off", "on", "both"), default="auto",
                         help="odometry from the twin's MCU fused in the infer stage: off (vision only), on, or both "
                              "(one after the other); auto: both for the fusion scenarios (drive, drive_clean, "
-                             "blackout, drive_kidnap), else off")
+                             "blackout, drive_kidnap, mcu_loss), else off")
 
 
 def variants(sc, fusion: str) -> list[str]:  # noqa: ANN001
@@ -272,7 +273,9 @@ def deployment_for(sc, args: argparse.Namespace, port: int, store: Path,  # noqa
     base = load_deployment(args.config).model_dump(mode="json", exclude_unset=True)
     endpoint = f"tcp/127.0.0.1:{port}"
     camera = args.camera or base.get("camera_model")  # the bench's, else the file's, else the court's own
-    sim = sc.sim.model_copy(update={"camera": camera, "mcu": None if mcu_link is None else TwinMcuConfig(link=str(mcu_link))})
+    mcu = None if mcu_link is None else TwinMcuConfig(link=str(mcu_link),
+                                                      silent_s=[sc.mcu_silent_s] if sc.mcu_silent_s else [])
+    sim = sc.sim.model_copy(update={"camera": camera, "mcu": mcu})
     if camera is not None:
         base["camera_model"] = camera
     base.update(
@@ -474,6 +477,14 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any],  # 
         start_ns, end_ns_blind = (_first_capture(truths, t_s, args.fps, fused) for t_s in sc.blackout_s)
         if start_ns is not None:
             result["blackout"] = blackout_metrics(poses, truths, start_ns, end_ns_blind or end_ns)
+    if sc.mcu_silent_s is not None:
+        # The same windows in both runs: fused, the middle one is the MCU's cable out; vision only, nothing changes.
+        out_ns, back_ns = (_first_capture(truths, t_s, args.fps, fused) for t_s in sc.mcu_silent_s)
+        if out_ns is not None:
+            back_ns = back_ns or end_ns + 1
+            result["mcu_loss"] = {name: window_metrics(poses, truths, lo, hi) for name, (lo, hi) in
+                                  (("before", (first, out_ns)), ("during", (out_ns, back_ns)),
+                                   ("after", (back_ns, end_ns + 1)))}
     kidnaps = [e.start_ns for e in events if e.kind == "kidnap"]
     if kidnaps:
         result["kidnaps"] = kidnap_metrics(poses, truths, kidnaps, end_ns)

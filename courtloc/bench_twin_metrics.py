@@ -219,6 +219,18 @@ def blackout_metrics(poses: list[PoseSample], truths: list[TruthSample], start_n
     }
 
 
+def window_metrics(poses: list[PoseSample], truths: list[TruthSample], start_ns: int, end_ns: int,
+                   wrong_m: float = WRONG_M) -> dict[str, Any]:
+    """The poses of captures [start_ns, end_ns): how many, how often valid, how many of those more than `wrong_m`
+    off, and the worst valid one's error."""
+    inside = [(p, e) for p, e in _matched_in_order(poses, truths) if start_ns <= p.capture_ns < end_ns]
+    valid_err = [e for p, e in inside if p.valid]
+    return {"poses": len(inside),
+            "valid_fraction": len(valid_err) / len(inside) if inside else None,
+            "valid_wrong": sum(e > wrong_m for e in valid_err),
+            "max_valid_error_m": float(max(valid_err)) if valid_err else None}
+
+
 def kidnap_metrics(poses: list[PoseSample], truths: list[TruthSample], kidnaps_ns: list[int], end_ns: int,
                    wrong_m: float = WRONG_M) -> list[dict[str, Any]]:
     """Per kidnap (capture of the first frame after it), until the next one or `end_ns`: `noticed_s` (to

@@ -41,6 +41,7 @@ class Scenario:
     infer_kill_at_s: Optional[float] = None  # sim time at which the bench kills the infer process (SIGKILL)
     fusion: bool = False  # run vision only and fused by default
     blackout_s: Optional[tuple[float, float]] = None  # [start, end) of the vision blackout the metrics look at
+    mcu_silent_s: Optional[tuple[float, float]] = None  # [start, end) in which the twin MCU's cable is out (fused runs)
 
     @property
     def start_pose(self) -> tuple[float, float, float]:
@@ -137,6 +138,14 @@ def _drive_kidnap(court: str, seconds: float, seed: int) -> Scenario:
                     "random walk from there", _loop(court, seed, kidnaps_s=[at]), fusion=True)
 
 
+def _mcu_loss(court: str, seconds: float, seed: int) -> Scenario:
+    # The middle third of an occluded walk without the MCU (a cable shaken loose): fused, the stage is what it is
+    # vision only meanwhile, and fuses again once odometry is back.
+    start, end = round(seconds / 3, 3), round(2 * seconds / 3, 3)
+    return Scenario("mcu_loss", f"as occluded; the MCU's cable out over [{start}, {end}) s (no odometry, no status)",
+                    _walk(court, seed, occluded()), fusion=True, mcu_silent_s=(start, end))
+
+
 SCENARIOS: dict[str, Callable[[str, float, int], Scenario]] = {
     "clean": _clean,
     "randomised": _randomised,
@@ -149,6 +158,7 @@ SCENARIOS: dict[str, Callable[[str, float, int], Scenario]] = {
     "drive_clean": _drive_clean,
     "blackout": _blackout,
     "drive_kidnap": _drive_kidnap,
+    "mcu_loss": _mcu_loss,
 }
 
 

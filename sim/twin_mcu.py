@@ -5,7 +5,7 @@ the camera renders on the SAME clock: with the MCU the sim runs in real time (`S
 time since the first frame's read), each frame shows the robot where it is at its read and is stamped
 with that instant, so frames, ground truth and odometry agree whatever the camera's pacing (a camera
 that cannot keep its rate misses moments; it does not slow the robot down, which no wheel could follow).
-Kidnaps are teleports the wheels do not feel.
+Kidnaps are teleports the wheels do not feel. `silent_s` unplugs the cable for a while: nothing either way.
 
 Every 1 / `odometry.rate_hz` of host time it writes one ODOMETRY frame (`protocol.encode_odometry`, the
 same bytes a real MCU sends) for the window since the previous one, with `OdometrySimulator`'s errors
@@ -28,7 +28,7 @@ import tty
 from pathlib import Path
 from typing import Optional, Sequence
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from courtloc.services.shooter_bridge.protocol import (
     Command,
@@ -49,6 +49,16 @@ class TwinMcuConfig(BaseModel):
     link: str = Field(description="symlink to the pty's slave: the shooter bridge's [link] port")
     odometry: OdometrySimConfig = Field(default_factory=OdometrySimConfig)
     listen_timeout_s: float = Field(0.5, gt=0, description="odometry flows while the bridge was heard this recently")
+    silent_s: list[tuple[float, float]] = Field(
+        default_factory=list, description="sim-time intervals [start, end) in which the cable is out: the MCU sends "
+        "nothing (no odometry, no status) and hears nothing")
+
+    @model_validator(mode="after")
+    def _intervals(self) -> "TwinMcuConfig":
+        for start, end in self.silent_s:
+            if not 0 <= start < end:
+                raise ValueError(f"silent_s: [{start}, {end}) is not an interval of sim time")
+        return self
 
 
 class SimClock:
@@ -127,17 +137,22 @@ class TwinMcu:
         while not self._stop.wait(max(0.0, (next_ns - time.monotonic_ns()) / 1e9)):
             now_ns = time.monotonic_ns()
             next_ns = max(next_ns + period_ns, now_ns)  # behind (a loaded machine): the next window is longer
-            self._read_host(now_ns)
             sim = self.clock.at(now_ns)
+            silent = self._cable_out(sim)
+            self._read_host(now_ns, answer=not silent)
             dt = (now_ns - prev_ns) / 1e9
             if dt <= 0:
                 continue
-            if now_ns - self._heard_ns <= self.config.listen_timeout_s * 1e9:
+            # Cable out: the wheels still turn, the windows measured meanwhile never reach the bridge.
+            if not silent and now_ns - self._heard_ns <= self.config.listen_timeout_s * 1e9:
                 forward, left, turn = felt_motion(self._trajectory, self._kidnaps, prev_sim, sim)
                 sample = self._errors.measure(self.sent, forward / dt, left / dt, turn / dt, dt,
                                               (now_ns - start_ns) / 1e9)
                 self._write(encode_odometry(sample), count=True)
             prev_ns, prev_sim = now_ns, sim
+
+    def _cable_out(self, sim: float) -> bool:
+        return any(start <= sim < end for start, end in self.config.silent_s)
 
     def _write(self, data: bytes, count: bool = False) -> None:
         try:
@@ -151,10 +166,14 @@ class TwinMcu:
         if count:
             self.sent += 1
 
-    def _read_host(self, now_ns: int) -> None:
+    def _read_host(self, now_ns: int, answer: bool = True) -> None:
+        """Take the bridge's frames and answer each with a STATUS; with the cable out (`answer` False) they are lost
+        on the way: read, so they do not pile up in the pty, and dropped."""
         try:
             data = os.read(self._master, 4096)
         except (BlockingIOError, OSError):  # nothing waiting (EIO: no bridge has the port open)
+            return
+        if not answer:
             return
         for frame in self._decoder.feed(data):
             if frame.command not in (Command.SET_RPM, Command.HOLD, Command.HEARTBEAT):

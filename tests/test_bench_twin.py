@@ -2,6 +2,7 @@
 real run (router + four stage processes) checking the report's keys and its pose-truth matching."""
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import subprocess
@@ -11,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from courtloc.bench_twin import scenario_events, scenario_rows, variants
+from courtloc.bench_twin import deployment_for, scenario_events, scenario_rows, variants
 from courtloc.bench_twin_metrics import (
     Event,
     PoseSample,
@@ -19,6 +20,7 @@ from courtloc.bench_twin_metrics import (
     blackout_metrics,
     kidnap_metrics,
     twin_metrics,
+    window_metrics,
 )
 from courtloc.sim.scenarios import SCENARIOS, scenario
 
@@ -279,6 +281,29 @@ def test_blackout_growth_is_what_a_consumer_trusting_the_flag_holds():
     out = blackout_metrics(fused, truths, start, end)
     assert out["valid_fraction_blackout"] == 1.0
     assert out["error_growth_m"] == pytest.approx(0.05) and out["max_valid_error_blackout_m"] == pytest.approx(0.07)
+
+
+def test_a_window_counts_its_poses_valid_and_valid_wrong():
+    truths = _truths(30)
+    poses = ([_pose(k, 0.01, True) for k in range(10)] + [_pose(k, 0.6, k % 2 == 0) for k in range(10, 20)]
+             + [_pose(k, 0.0, False) for k in range(20, 30)])
+    during = window_metrics(poses, truths, 100 * MS * 10, 100 * MS * 20)
+    assert during == {"poses": 10, "valid_fraction": 0.5, "valid_wrong": 5, "max_valid_error_m": pytest.approx(0.6)}
+    before = window_metrics(poses, truths, 0, 100 * MS * 10)
+    assert before["valid_fraction"] == 1.0 and before["valid_wrong"] == 0
+    after = window_metrics(poses, truths, 100 * MS * 20, 100 * MS * 30)
+    assert after["valid_fraction"] == 0.0 and after["max_valid_error_m"] is None
+    assert window_metrics(poses, truths, 100 * MS * 40, 100 * MS * 50)["valid_fraction"] is None
+
+
+def test_the_mcu_loss_scenario_unplugs_the_twin_mcu_in_its_fused_run_only(tmp_path: Path):
+    sc = scenario("mcu_loss", "robocon2025", 30.0)
+    assert sc.mcu_silent_s == (10.0, 20.0) and variants(sc, "auto") == ["vision_only", "fused"]
+    args = argparse.Namespace(camera=None, config=None, fps=30.0, tell_start="pose")
+    fused = deployment_for(sc, args, 7447, tmp_path / "store", {}, mcu_link=tmp_path / "mcu")
+    assert fused.camera.sim["mcu"]["silent_s"] == [[10.0, 20.0]] and fused.infer.fusion.enabled
+    vision = deployment_for(sc, args, 7447, tmp_path / "store", {})
+    assert vision.camera.sim["mcu"] is None and not vision.infer.fusion.enabled
 
 
 def test_a_kidnap_is_noticed_at_the_first_invalid_pose_and_wrong_valid_ones_are_counted():

@@ -105,6 +105,32 @@ def test_the_bridge_link_reads_the_twin_mcu_off_its_pty(tmp_path: Path):
     assert not (tmp_path / "mcu").exists()
 
 
+@pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs ptys")
+def test_with_its_cable_out_the_twin_mcu_sends_nothing_and_streams_again_after(tmp_path: Path):
+    """`bench twin --scenario mcu_loss`: over `silent_s` (sim time) the bridge hears nothing, then odometry flows."""
+    mcu = TwinMcu(TwinMcuConfig(link=str(tmp_path / "mcu"), silent_s=[(0.0, 0.6)]), LOOP, [])
+    received: list[int] = []
+    mcu.start()
+    t0 = time.monotonic_ns()
+    mcu.clock.start(t0)  # sim time runs from here, as from a camera's first frame
+    link = McuLink(LinkConfig(port=str(tmp_path / "mcu"), heartbeat_s=0.05),
+                   on_odometry=lambda sample, received_ns: received.append(received_ns))
+    try:
+        link.start()
+        assert link.wait_until(lambda lk: lk.stats.odometry_frames >= 20 and lk.stats.status_frames >= 1, 20.0)
+        # Plugged in, the first frames come within a heartbeat or two (the test above); out, none before 0.6 s.
+        assert min(received) >= t0 + 600_000_000
+        assert link.stats.bad_odometry == 0
+    finally:
+        link.stop()
+        mcu.stop()
+
+
+def test_a_silence_that_is_no_interval_is_refused():
+    with pytest.raises(ValueError, match="silent_s"):
+        TwinMcuConfig(link="mcu", silent_s=[(2.0, 1.0)])
+
+
 def test_the_camera_stamps_a_frame_at_the_instant_its_source_says():
     from courtloc.services.camera.service import capture_header
 
