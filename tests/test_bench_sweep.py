@@ -93,3 +93,11 @@ def test_a_short_clean_walk_is_tracked_in_both_modes(tmp_path: Path, capsys: pyt
         assert mode["runs"] == 2 and mode["n"] == 60 + 30
         assert mode["valid_fraction"] > 0.5 and mode["valid_wrong"] == 0
     assert report["run"]["seeds"] == [1] and "clean " in done.stdout
+
+
+def test_a_scenario_the_sweep_cannot_model_is_refused_in_one_line(capsys: pytest.CaptureFixture[str],
+                                                                   caplog: pytest.LogCaptureFixture) -> None:
+    done = courtloc_in_process(["bench", "sweep", "--court", "robocon2025", "--scenario", "clean,mcu_loss", "--seeds",
+                                "1", "--seconds", "2", "--timings", "all"], capsys, caplog)
+    assert done.returncode == 2 and "mcu_loss" in done.stderr and done.stderr.strip().count("\n") == 0
+    assert "Traceback" not in done.stderr
