@@ -65,6 +65,11 @@ class SearchConfig(BaseModel):
     max_range_m: float = Field(9.0, gt=0)
     candidates: int = Field(8, ge=1, description="coarse minima refined")
     area_margin_m: float = Field(0.0, description="search |x|,|y| up to the court's robot area + this")
+    marks_candidates: int = Field(4, ge=0, description="on a court with colour marks, coarse minima of the line cost "
+                                  "plus marks_weight x the share of the frame's marks off their colour, refined too "
+                                  "(marks_search.py; 0: none)")
+    marks_weight: float = Field(0.3, ge=0, description="m of line cost a frame's marks all off their colour count as")
+    marks_min: int = Field(12, ge=1, description="fewer colour marks in range than this add no candidates")
 
 
 class MotionConfig(BaseModel):

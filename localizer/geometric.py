@@ -24,6 +24,7 @@ from courtloc.localizer.court_field import CourtField
 from courtloc.localizer.fit import FitResult, fit_pose, fit_poses, quality_score
 from courtloc.localizer.hypotheses import merge_converged, placed_by_marks, with_twins, without_misplaced_newcomers
 from courtloc.localizer.marks import MarkMap, MarkPoints, off_their_colour, places
+from courtloc.localizer.marks_search import MarksSearch
 from courtloc.localizer.projection import HitGeometry, ProjectedHits
 from courtloc.localizer.result import LocalizeResult
 from courtloc.localizer.search import CoarseSearch
@@ -83,6 +84,7 @@ class GeometricLocalizer:
         # both alive, whatever its tracking does to either.
         self.symmetric = self.field.point_symmetric()
         self.mark_map = MarkMap(court) if court.marks else None
+        self.marks_search = MarksSearch(self.search, self.mark_map) if self.mark_map is not None else None
 
     def localize_points(self, floor_points: np.ndarray, previous: np.ndarray | None = None) -> LocalizeResult:
         """Pose from (N, 2) robot-frame floor points (NaN rows ignored). Points carry no pixels, hence no scan
@@ -444,6 +446,7 @@ class GeometricLocalizer:
                 live.append((step.result, replace(h, state=step.state, pinned=h.pinned or step.result.valid,
                                                   pinned_sighting=sighting, frames=h.frames + 1)))
         since = state.since_search + 1
+        points = marks() if self.mark_map is not None and marks is not None else None
         searched: FitResult | None = None
         unpinned_cost: float | None = None
         # Search again when there is nothing to track, every research_frames frames, and on every frame
@@ -456,13 +459,12 @@ class GeometricLocalizer:
             # would have made in 0.2 s restarted for 1.7 s (the robocon2025 twin's minus_x_start, vision only).
             declared = prior is not None and prior.pose is not None and prior.source in ("start", "pit") \
                 and prior.carry is not None
-            found, searched, unpinned_cost = self._search_hypotheses(hits, t, near_pinned=declared)
+            found, searched, unpinned_cost = self._search_hypotheses(hits, t, near_pinned=declared, marks=points)
             live += found
             since = 0
         live = merge_converged(with_twins(live) if self.symmetric else live, acfg, carried)
         behind = acquire.frames_behind([h for _, h in live], [res.fit.cost for res, _ in live], acfg)
         live = [(res, replace(h, behind=b)) for (res, h), b in zip(live, behind) if b < acfg.tie_drop_frames]
-        points = marks() if self.mark_map is not None and marks is not None else None
         seen = [] if points is None or not len(points) else [self.mark_map.evidence(h.pose, points) for _, h in live]
         if seen:
             live, seen = without_misplaced_newcomers(live, seen, len(points), acfg)
@@ -599,15 +601,20 @@ class GeometricLocalizer:
         evidence = self.paint_evidence(hits, state.mean[:3], state.cov[:3, :3])
         return evidence.on_paint >= acfg.carry_min_explained * evidence.judged
 
-    def _search_hypotheses(self, hits: ProjectedHits, t: float | None, near_pinned: bool = False
+    def _search_hypotheses(self, hits: ProjectedHits, t: float | None, near_pinned: bool = False,
+                           marks: MarkPoints | None = None
                            ) -> tuple[list[tuple[LocalizeResult, acquire.Hypothesis]], FitResult | None, float | None]:
         """Every valid global-search fit within the tie of the best, and each one's mirror twin; the
         lowest-cost fit of all (what a frame without hypotheses answers, invalid); and the cost of an invalid fit
         that explains the view better than every valid one found (None: a valid one is the best). `near_pinned`
         (a declared pose odometry carries): when no fit is valid, those pinned to `search_near_pinned_std_m` seed
-        unpinned hypotheses instead of none."""
+        unpinned hypotheses instead of none. `marks` (the frame's colour marks) add the coarse poses that put them on
+        their colour to the line search's candidates (marks_search.py)."""
         acfg = self.config.acquire
-        candidates = self.search.candidates(hits)
+        cost = self.search.costs(hits)
+        candidates = self.search.pick(cost)
+        if self.marks_search is not None and marks is not None and len(marks):
+            candidates += self.marks_search.candidates(cost, marks, candidates, self.symmetric, self.config.search)
         if not candidates:
             return [], None, None
         firsts = self._fit_starts(hits, np.array(candidates))

@@ -123,7 +123,10 @@ class CoarseSearch:
 
     def candidates(self, hits: ProjectedHits) -> list[np.ndarray]:
         """Up to cfg.candidates distinct low-cost poses (x, y, yaw), best first."""
-        cost = self.costs(hits)
+        return self.pick(self.costs(hits))
+
+    def pick(self, cost: np.ndarray) -> list[np.ndarray]:
+        """Up to cfg.candidates distinct low-cost poses (x, y, yaw) of a `costs` array, best first."""
         best = lowest(cost.ravel(), POOL_PER_CANDIDATE * self.cfg.candidates)
         k, i, j = np.unravel_index(best, cost.shape)
         picked: list[np.ndarray] = []

@@ -297,7 +297,8 @@ def test_a_fused_degenerate_frame_is_valid_by_its_posterior(prior_std_m, valid) 
 
 
 def _replay_recording(name: str, update: dict | None = None, motion_update: dict | None = None,
-                      acquire_update: dict | None = None) -> tuple[list[float], list[bool], list[dict]]:
+                      acquire_update: dict | None = None, search_update: dict | None = None
+                      ) -> tuple[list[float], list[bool], list[dict]]:
     """A recorded slice of twin frames (tests/data/NAME: its court, seed-gazebo unless named, the tracker's state
     before it, and each frame's hits, colour marks and true pose) through the court's bundled localizer, its settings
     changed by `update` (and its motion / acquisition settings by the others): each frame's position error, validity,
@@ -314,7 +315,8 @@ def _replay_recording(name: str, update: dict | None = None, motion_update: dict
     config = predictor.localizer.config
     predictor.localizer.config = config.model_copy(update={
         **(update or {}), "motion": config.motion.model_copy(update=motion_update or {}),
-        "acquire": config.acquire.model_copy(update=acquire_update or {})})
+        "acquire": config.acquire.model_copy(update=acquire_update or {}),
+        "search": config.search.model_copy(update=search_update or {})})
     width, height = data["size"]
     errors, valid = [], []
     for frame in data["frames"]:
@@ -494,8 +496,10 @@ def test_a_few_colour_marks_still_need_the_whole_half_metre() -> None:
     must move the whole `marks_motion_m` first, and dies of the next views before."""
     errors, valid, frames = _replay_recording("r25_clean_marks_misread.json")
     assert not [(f["t"], round(e, 2)) for f, e, v in zip(frames, errors, valid) if v and e > 0.5]
-    # Without the rule that marks the decided pose leaves off their colour undo a decision, which guards it too.
-    errors, valid, frames = _replay_recording("r25_clean_marks_misread.json",
-                                              acquire_update={"marks_strong": 1, "marks_decided_share": 0.0})
+    # Without the rule that marks the decided pose leaves off their colour undo a decision, which guards it too; and
+    # without the marks' own search candidates (thirtieth session), which now find the truth in this view.
+    errors, valid, frames = _replay_recording(
+        "r25_clean_marks_misread.json", acquire_update={"marks_strong": 1, "marks_decided_share": 0.0},
+        search_update={"marks_candidates": 0})
     assert [(f["t"], round(e, 2)) for f, e, v in zip(frames, errors, valid) if v and e > 0.5], \
         "the recording no longer shows the misread view the rule is for"
