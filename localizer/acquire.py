@@ -4,7 +4,8 @@ A single frame often fits more than one place on the court equally well: always 
 twin (x, y, yaw) / (-x, -y, yaw + pi) on a point-symmetric court, and sometimes other near-ties (the
 court repeats parallel lines). The rule, one frame at a time while acquiring:
 
-1. Hypotheses. A global search proposes poses; every refined fit that is valid, or trackable (enough
+1. Hypotheses. A global search proposes poses (the line search's, and on a court with colour marks the poses that
+   put a frame's marks on their colour, marks_search.py); every refined fit that is valid, or trackable (enough
    inliers, but the view does not pin the position: only parallel lines), and whose robust cost is
    within `tie_ratio` x the best (+ `tie_abs`) is a hypothesis, and so is each one's mirror twin
    (refined on its own: on a symmetric court it ties exactly, where the arena differs its cost decides).
