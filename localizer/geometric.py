@@ -84,7 +84,8 @@ class GeometricLocalizer:
         # both alive, whatever its tracking does to either.
         self.symmetric = self.field.point_symmetric()
         self.mark_map = MarkMap(court) if court.marks else None
-        self.marks_search = MarksSearch(self.search, self.mark_map) if self.mark_map is not None else None
+        self.marks_search = MarksSearch(self.search, self.mark_map, self.symmetric) \
+            if self.mark_map is not None else None
 
     def localize_points(self, floor_points: np.ndarray, previous: np.ndarray | None = None) -> LocalizeResult:
         """Pose from (N, 2) robot-frame floor points (NaN rows ignored). Points carry no pixels, hence no scan
@@ -614,7 +615,7 @@ class GeometricLocalizer:
         cost = self.search.costs(hits)
         candidates = self.search.pick(cost)
         if self.marks_search is not None and marks is not None and len(marks):
-            candidates += self.marks_search.candidates(cost, marks, candidates, self.symmetric, self.config.search)
+            candidates += self.marks_search.candidates(cost, marks, candidates, self.config.search)
         if not candidates:
             return [], None, None
         firsts = self._fit_starts(hits, np.array(candidates))

@@ -18,15 +18,12 @@ import numpy as np
 
 from courtloc.localizer.config import SearchConfig
 from courtloc.localizer.marks import MarkMap, MarkPoints
-from courtloc.localizer.search import POOL_PER_CANDIDATE, CoarseSearch, accumulate, lowest
-
-# Candidates nearer than this (and `_NEAR_YAW`) to a better one, or to a line candidate or its twin, are not taken.
-_NEAR_M = 0.5
-_NEAR_YAW = math.radians(10)
+from courtloc.localizer.search import POOL_PER_CANDIDATE, CoarseSearch, accumulate, distinct, lowest
+from courtloc.localizer.symmetry import mirror
 
 
 class MarksSearch:
-    def __init__(self, search: CoarseSearch, mark_map: MarkMap) -> None:
+    def __init__(self, search: CoarseSearch, mark_map: MarkMap, point_symmetric: bool) -> None:
         self.search = search
         ny, nx = search.values.shape
         # The padded grid's cell centres: padded column c holds the coarse column c - pad (search.py).
@@ -41,16 +38,17 @@ class MarksSearch:
         labels[inside] = mark_map.labels[row[inside], col[inside]]
         labels = labels.reshape(ny, nx)
         self.off_colour = [np.ascontiguousarray(labels != m + 1, np.float32) for m in range(mark_map.n_marks)]
+        # The second half-turn's line cost is the first's mirrored on a point-symmetric court and a grid mirrored to a
+        # fraction of a cell; else only the first half-turn is searched.
         tolerance = 0.25 * search.res
-        self.mirrored = bool(np.allclose(search.tx, -search.tx[::-1], atol=tolerance)
-                             and np.allclose(search.ty, -search.ty[::-1], atol=tolerance))
+        self.both_halves = point_symmetric and bool(np.allclose(search.tx, -search.tx[::-1], atol=tolerance)
+                                                    and np.allclose(search.ty, -search.ty[::-1], atol=tolerance))
 
-    def candidates(self, line_cost: np.ndarray, marks: MarkPoints, taken: list[np.ndarray], point_symmetric: bool,
+    def candidates(self, line_cost: np.ndarray, marks: MarkPoints, taken: list[np.ndarray],
                    cfg: SearchConfig) -> list[np.ndarray]:
         """Up to `marks_candidates` poses (x, y, yaw) of least line cost (`CoarseSearch.costs`) plus `marks_weight` x
         the share of the marks off their colour, none near a better one nor near a pose of `taken` (the line search's
-        candidates) or its twin; none with fewer than `marks_min` marks in range. The second half-turn needs a
-        point-symmetric court on a mirrored grid (its line cost is then the first's, mirrored); else the first only."""
+        candidates) or its twin; none with fewer than `marks_min` marks in range."""
         if cfg.marks_candidates == 0:
             return []
         shares = self._off_colour_share(marks, line_cost.shape, cfg)
@@ -58,22 +56,15 @@ class MarksSearch:
             return []
         first, second = shares
         costs, yaws = [line_cost + cfg.marks_weight * first], [self.search.yaws]
-        if point_symmetric and self.mirrored:
+        if self.both_halves:
             costs.append(line_cost[:, ::-1, ::-1] + cfg.marks_weight * second)
             yaws.append(self.search.yaws + math.pi)
         total, all_yaws = np.concatenate(costs), np.concatenate(yaws)
         best = lowest(total.ravel(), POOL_PER_CANDIDATE * cfg.marks_candidates)
         k, i, j = np.unravel_index(best, total.shape)
-        near = [np.asarray(p, np.float64) for p in taken] + [np.array([-p[0], -p[1], p[2] + math.pi]) for p in taken]
-        picked: list[np.ndarray] = []
-        for pose in np.column_stack([self.search.tx[j], self.search.ty[i], all_yaws[k]]):
-            if any(math.hypot(*(pose[:2] - p[:2])) < _NEAR_M and abs(math.remainder(pose[2] - p[2], 2 * math.pi))
-                   < _NEAR_YAW for p in near + picked):
-                continue
-            picked.append(pose)
-            if len(picked) >= cfg.marks_candidates:
-                break
-        return picked
+        near = [np.asarray(p, np.float64) for p in taken] + [mirror(np.asarray(p, np.float64)) for p in taken]
+        return distinct(np.column_stack([self.search.tx[j], self.search.ty[i], all_yaws[k]]), cfg.marks_candidates,
+                        2 * math.pi, near)
 
     def _off_colour_share(self, marks: MarkPoints, shape: tuple[int, ...], cfg: SearchConfig
                           ) -> tuple[np.ndarray, np.ndarray] | None:

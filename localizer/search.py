@@ -14,6 +14,7 @@ stage dropped frames while acquiring).
 from __future__ import annotations
 
 import math
+from typing import Sequence
 
 import numpy as np
 
@@ -29,6 +30,9 @@ except ImportError:  # built without a C compiler: the numpy loop below, same su
 
 # The pool of lowest-cost grid poses the non-maximum suppression walks, per candidate asked for.
 POOL_PER_CANDIDATE = 40
+# Candidates this near (and this near in heading) to a better one are one basin: only the better is refined.
+NEAR_M = 0.5
+NEAR_YAW_RAD = math.radians(10)
 
 
 def kernel_available() -> bool:
@@ -71,6 +75,20 @@ def lowest(values: np.ndarray, n: int) -> np.ndarray:
         bound = np.partition(sample, n - 1)[n - 1]
         idx = np.flatnonzero(values <= bound)
     return idx[np.lexsort((idx, values[idx]))][:n]
+
+
+def distinct(poses: np.ndarray, limit: int, yaw_period: float, taken: Sequence[np.ndarray] = ()) -> list[np.ndarray]:
+    """The first `limit` of `poses` (x, y, yaw rows, best first) none of which is near a better one or a pose of
+    `taken` (`NEAR_M`, and `NEAR_YAW_RAD` with headings compared modulo `yaw_period`): non-maximum suppression."""
+    picked: list[np.ndarray] = []
+    for pose in poses:
+        if any(math.hypot(*(pose[:2] - p[:2])) < NEAR_M
+               and abs(math.remainder(pose[2] - p[2], yaw_period)) < NEAR_YAW_RAD for p in (*taken, *picked)):
+            continue
+        picked.append(pose)
+        if len(picked) >= limit:
+            break
+    return picked
 
 
 class CoarseSearch:
@@ -129,13 +147,5 @@ class CoarseSearch:
         """Up to cfg.candidates distinct low-cost poses (x, y, yaw) of a `costs` array, best first."""
         best = lowest(cost.ravel(), POOL_PER_CANDIDATE * self.cfg.candidates)
         k, i, j = np.unravel_index(best, cost.shape)
-        picked: list[np.ndarray] = []
-        for pose in np.column_stack([self.tx[j], self.ty[i], self.yaws[k]]):
-            # Non-maximum suppression: skip poses close to a better one already taken.
-            if any(math.hypot(*(pose[:2] - p[:2])) < 0.5 and
-                   abs((pose[2] - p[2] + math.pi / 2) % math.pi - math.pi / 2) < math.radians(10) for p in picked):
-                continue
-            picked.append(pose)
-            if len(picked) >= self.cfg.candidates:
-                break
-        return picked
+        # Headings over half a turn: a pose and its turned-around self are one search pose (module docstring).
+        return distinct(np.column_stack([self.tx[j], self.ty[i], self.yaws[k]]), self.cfg.candidates, math.pi)

@@ -33,7 +33,7 @@ def test_candidates_put_the_marks_on_their_own_strip_and_never_on_the_other(loca
     search, marks = localizer.search, _strip_marks(TRUTH)
     flat = np.zeros((len(search.yaws), len(search.ty), len(search.tx)), np.float32)  # lines tie everywhere
     cfg = localizer.config.search
-    found = localizer.marks_search.candidates(flat, marks, [], True, cfg)
+    found = localizer.marks_search.candidates(flat, marks, [], cfg)
     assert len(found) == cfg.marks_candidates
     for pose in found:
         own, other = localizer.mark_map.evidence(pose, marks)
@@ -46,7 +46,7 @@ def test_no_candidate_beside_one_the_line_search_proposed_or_its_twin(localizer)
     search, marks = localizer.search, _strip_marks(TRUTH)
     flat = np.zeros((len(search.yaws), len(search.ty), len(search.tx)), np.float32)
     twin = np.array([-TRUTH[0], -TRUTH[1], TRUTH[2] + math.pi])
-    found = localizer.marks_search.candidates(flat, marks, [TRUTH], True, localizer.config.search)
+    found = localizer.marks_search.candidates(flat, marks, [TRUTH], localizer.config.search)
     assert found
     for pose in found:
         for taken in (TRUTH, twin):
@@ -59,9 +59,9 @@ def test_too_few_marks_or_none_asked_add_no_candidate(localizer) -> None:  # noq
     flat = np.zeros((len(search.yaws), len(search.ty), len(search.tx)), np.float32)
     cfg = localizer.config.search
     few = MarkPoints(marks.points[:cfg.marks_min - 1], marks.index[:cfg.marks_min - 1])
-    assert localizer.marks_search.candidates(flat, few, [], True, cfg) == []
+    assert localizer.marks_search.candidates(flat, few, [], cfg) == []
     none_asked = cfg.model_copy(update={"marks_candidates": 0})
-    assert localizer.marks_search.candidates(flat, marks, [], True, none_asked) == []
+    assert localizer.marks_search.candidates(flat, marks, [], none_asked) == []
 
 
 def test_a_court_without_marks_has_no_marks_search() -> None:
