@@ -4,7 +4,9 @@ The callback only stores the payload and notifies; decoding and work happen on t
 `keep` payloads the worker has not taken (the services table's `Topic.inbox_depth`); one more pushes out the topic's
 oldest, counted as dropped. So a slow stage skips frames instead of building a backlog, and a stream topic kept two
 deep rides out a stall of about one frame interval (scheduler, a searching frame) without losing a frame: at 120 fps
-latest-only inboxes dropped 1-3 frames in 2,200 that way (docs/measurements.md, thirtieth session).
+latest-only inboxes dropped 1-3 frames in 2,200 that way (docs/measurements.md, thirtieth session). A topic whose
+newest message carries all the older ones did (`superseding`, odometry) loses nothing when one replaces another: that
+is counted as superseded, apart from the drops.
 """
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ import threading
 import time
 from collections import Counter, deque
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 
 @dataclass
@@ -25,14 +27,19 @@ class Delivery:
 class Inbox:
     """Payloads in arrival order, at most `keep[topic]` (default 1) of a topic waiting at a time."""
 
-    def __init__(self, keep: Mapping[str, int] | None = None) -> None:
+    def __init__(self, keep: Mapping[str, int] | None = None, superseding: Iterable[str] = ()) -> None:
         self._keep = dict(keep or {})
         if any(depth < 1 for depth in self._keep.values()):
             raise ValueError(f"inbox depths must be >= 1: {self._keep}")
+        self._superseding = frozenset(superseding)
+        deep = sorted(t for t in self._superseding if self._keep.get(t, 1) != 1)
+        if deep:
+            raise ValueError(f"a topic whose newest message supersedes the older ones is kept one deep: {deep}")
         self._queue: deque[Delivery] = deque()
         self._waiting: Counter[str] = Counter()
         self._cond = threading.Condition()
         self.dropped = 0
+        self.superseded = 0
         self.received = 0
 
     def put(self, topic_path: str, payload: Any) -> None:
@@ -43,7 +50,10 @@ class Inbox:
                 self._waiting[topic_path] += 1
                 self._queue.append(delivery)
             else:
-                self.dropped += 1
+                if topic_path in self._superseding:
+                    self.superseded += 1
+                else:
+                    self.dropped += 1
                 self._replace_oldest(delivery)
             self._cond.notify()
 

@@ -49,7 +49,8 @@ class Service:
         self.stop_event = threading.Event()
         self.session: zenoh.Session | None = None
         self._publishers: dict[str, zenoh.Publisher] = {}
-        self._inbox = Inbox({path: TOPICS[path].inbox_depth for path in self.spec.inputs})
+        self._inbox = Inbox({path: TOPICS[path].inbox_depth for path in self.spec.inputs},
+                            superseding=[path for path in self.spec.inputs if TOPICS[path].newest_supersedes])
         self._started = time.monotonic()
         self._rate_log = RateLimitedLog(self.log)
         self.health_period_s = HEALTH_PERIOD_S  # the deployment's health_period_s (stage_main sets it)
@@ -258,6 +259,7 @@ class Service:
         detail.update({f"reject.{k}": v for k, v in self.rejected_by_reason.items()})
         detail.update({f"published.{k}": v for k, v in self.published.items()})
         # Whether the direct links came up (docs/deployment.md): the peers this session is linked to.
+        detail["superseded"] = self._inbox.superseded
         detail["links"] = "direct" if self.zenoh_config.stage_links().mode == "peer" else "router"
         detail["zenoh_peers"] = len(list(self.session.info.peers_zid())) if self.session is not None else 0
         detail.update(self.health_detail())

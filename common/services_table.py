@@ -49,6 +49,9 @@ class Topic(_Keyed):
     freshness_ms: float
     doc: str
     inbox_depth: int = 1  # payloads a subscribing stage holds untaken before the oldest is dropped (common/inbox.py)
+    # The newest message carries all an older one did (odometry's dead-reckoned pose): one replaced while waiting is
+    # counted as superseded, not as a drop, so a stage's drops count only what was lost.
+    newest_supersedes: bool = False
 
     @property
     def max_bytes(self) -> int:
@@ -82,8 +85,9 @@ def check_robot_id(robot_id: str) -> str:
 
 def _topic(service: str, name: str, message: type[BaseModel], rate_hz: float, priority: Priority,
            freshness_ms: float, doc: str, congestion: Congestion = "drop", express: bool = True,
-           inbox_depth: int = 1) -> Topic:
-    return Topic(service, name, message, rate_hz, priority, congestion, express, freshness_ms, doc, inbox_depth)
+           inbox_depth: int = 1, newest_supersedes: bool = False) -> Topic:
+    return Topic(service, name, message, rate_hz, priority, congestion, express, freshness_ms, doc, inbox_depth,
+                 newest_supersedes)
 
 
 # The chain's streams are kept two deep by the stage that takes them: a stall of about one frame interval (the
@@ -110,7 +114,7 @@ _TOPICS: tuple[Topic, ...] = (
     # Odometry: the bridge relays the MCU's wheel odometry and gyro; another source (a ROS bridge, a
     # tracking camera) may publish the same message on this key instead.
     _topic("shooter_bridge", "odometry", Odometry, 100.0, "real_time", 100.0,
-           "wheel odometry and gyro yaw rate, body frame, on this host's clock"),
+           "wheel odometry and gyro yaw rate, body frame, on this host's clock", newest_supersedes=True),
 )
 
 SERVICES: dict[str, ServiceSpec] = {

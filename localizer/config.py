@@ -70,6 +70,8 @@ class SearchConfig(BaseModel):
                                   "(marks_search.py; 0: none)")
     marks_weight: float = Field(0.3, ge=0, description="m of line cost a frame's marks all off their colour count as")
     marks_min: int = Field(12, ge=1, description="fewer colour marks in range than this add no candidates")
+    marks_max_points: int = Field(30, ge=4, description="colour marks spread over the ones in range that the marks "
+                                  "search sums at every coarse pose")
 
 
 class MotionConfig(BaseModel):

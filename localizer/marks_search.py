@@ -68,14 +68,15 @@ class MarksSearch:
 
     def _off_colour_share(self, marks: MarkPoints, shape: tuple[int, ...], cfg: SearchConfig
                           ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The share of the marks (in range, spread over at most `max_points`) off their own colour at every grid pose,
-        for the search's headings and for them turned half a turn; None with fewer than `marks_min` in range."""
+        """The share of the marks (in range, spread over at most `marks_max_points`) off their own colour at every
+        grid pose, for the search's headings and for them turned half a turn; None with fewer than `marks_min` in
+        range."""
         search = self.search
         near = np.nonzero(np.hypot(marks.points[:, 0], marks.points[:, 1]) < cfg.max_range_m)[0]
         if len(near) < cfg.marks_min:
             return None
-        if len(near) > cfg.max_points:
-            near = near[np.linspace(0, len(near) - 1, cfg.max_points).round().astype(int)]
+        if len(near) > cfg.marks_max_points:
+            near = near[np.linspace(0, len(near) - 1, cfg.marks_max_points).round().astype(int)]
         points, index = marks.points[near], marks.index[near]
         c, s = np.cos(search.yaws)[:, None], np.sin(search.yaws)[:, None]
         rows, cols = (search.i0, search.i1), (search.j0, search.j1)

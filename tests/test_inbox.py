@@ -36,7 +36,23 @@ def test_a_topic_kept_one_deep_is_replaced_in_its_place() -> None:
     inbox.put("frame", "f1")
     inbox.put("odometry", "o2")
     assert _taken(inbox) == [("odometry", "o2"), ("frame", "f1")]
-    assert inbox.dropped == 1
+    assert (inbox.dropped, inbox.superseded) == (1, 0)
+
+
+def test_a_superseding_topic_replaced_is_counted_apart_from_the_drops() -> None:
+    """The newest odometry carries all an older one did: replacing it loses nothing, and the stage's drops say so."""
+    inbox = Inbox({"frame": 1, "odometry": 1}, superseding=["odometry"])
+    for path, payload in (("odometry", "o1"), ("frame", "f1"), ("odometry", "o2"), ("odometry", "o3")):
+        inbox.put(path, payload)
+    assert (inbox.received, inbox.dropped, inbox.superseded) == (4, 0, 2)
+    inbox.put("frame", "f2")
+    assert (inbox.dropped, inbox.superseded) == (1, 2)
+    assert _taken(inbox) == [("odometry", "o3"), ("frame", "f2")]
+
+
+def test_a_superseding_topic_kept_deeper_than_one_is_refused() -> None:
+    with pytest.raises(ValueError, match="one deep"):
+        Inbox({"odometry": 2}, superseding=["odometry"])
 
 
 def test_depths_count_per_topic_and_free_up_as_taken() -> None:
@@ -81,8 +97,9 @@ def test_a_stage_keeps_its_inputs_as_deep_as_the_services_table_says() -> None:
     edges, odometry = "preprocess/edges", "shooter_bridge/odometry"
     assert set(SERVICES["infer"].inputs) == {edges, odometry}
     assert TOPICS[edges].inbox_depth == 2 and TOPICS[odometry].inbox_depth == 1
+    assert TOPICS[odometry].newest_supersedes and not TOPICS[edges].newest_supersedes
     callbacks = {path: probe._make_callback(path) for path in (edges, odometry)}
     for path, payload in ((edges, "e1"), (odometry, "o1"), (edges, "e2"), (odometry, "o2"), (edges, "e3")):
         callbacks[path](SimpleNamespace(payload=payload))
-    assert probe._inbox.dropped == 2
+    assert (probe._inbox.dropped, probe._inbox.superseded) == (1, 1)
     assert _taken(probe._inbox) == [(odometry, "o2"), (edges, "e2"), (edges, "e3")]

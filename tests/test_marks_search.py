@@ -66,3 +66,20 @@ def test_too_few_marks_or_none_asked_add_no_candidate(localizer) -> None:  # noq
 
 def test_a_court_without_marks_has_no_marks_search() -> None:
     assert load_predictor(bundled_package("seed-gazebo", "seed-gazebo")).localizer.marks_search is None
+
+
+def test_the_marks_search_sums_at_most_its_own_number_of_marks_spread_over_those_in_range(localizer) -> None:  # noqa: ANN001
+    """45 strip marks in range, `marks_max_points` 15: every third is summed, whatever the line search's `max_points`
+    (the strip is an area: fewer of its marks place it as well, at a fraction of the search's sums)."""
+    search, marks = localizer.search, _strip_marks(TRUTH)
+    assert len(marks.points) == 45
+    shape = (len(search.yaws), len(search.ty), len(search.tx))
+    cfg = localizer.config.search.model_copy(update={"marks_max_points": 15, "max_points": 60})
+    capped = localizer.marks_search._off_colour_share(marks, shape, cfg)
+    spread = np.linspace(0, 44, 15).round().astype(int)
+    chosen = MarkPoints(marks.points[spread], marks.index[spread])
+    alone = localizer.marks_search._off_colour_share(chosen, shape, cfg)
+    every = localizer.marks_search._off_colour_share(marks, shape, cfg.model_copy(update={"marks_max_points": 45}))
+    for half in range(2):
+        np.testing.assert_array_equal(capped[half], alone[half])
+        assert not np.array_equal(capped[half], every[half])
