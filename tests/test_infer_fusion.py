@@ -91,6 +91,8 @@ enabled = true
         client.put_raw("shooter_bridge/odometry", codec.encode(bad))
         health = client.wait_for("infer/health", lambda h: h.detail.get("odom_rejected.non_finite", 0) >= 1)
         assert health.detail["fusion.valid_on_odometry"] >= 1 and infer.alive()
+        # Odometry replaced by newer odometry while a frame ran is counted apart: no frame was lost here.
+        assert health.dropped == 0 and health.detail["superseded"] >= 0
     finally:
         stop.set()
         streamer.join(2.0)
