@@ -481,11 +481,12 @@ def test_many_colour_marks_decide_once_the_survivor_moved_a_quarter_metre() -> N
     """Recorded robocon2025 frames (tests/data/r25_kidnap_marks_soon.json, the sweep's `kidnap` walk seed 4, vision
     only, teleported at 20 s): the marks speak for one hypothesis and against its twin from the first frames, 70 a
     frame; with `marks_strong` (100) for it they decide once it has moved half of `marks_motion_m` (0.25 m, or turned
-    10 degrees), and the pose is valid and right 0.4 s after the teleport. Needing the whole 0.5 m it took 0.53 s."""
+    10 degrees), and the pose is valid and right 0.4 s after the teleport. Needing the whole 0.5 m it took 0.53 s when
+    the marks search summed 60 marks, and with the 30 it sums now (thirty-first session) it is not back in the slice."""
     back, wrong = _back_after("r25_kidnap_marks_soon.json", 20.0)
     assert back is not None and back <= 0.45 and not wrong, (back, wrong)
     back_before, wrong = _back_after("r25_kidnap_marks_soon.json", 20.0, acquire_update={"marks_strong": 10**6})
-    assert back_before is not None and back_before > 0.45 and not wrong, back_before
+    assert (back_before is None or back_before > 0.45) and not wrong, back_before
 
 
 def test_a_few_colour_marks_still_need_the_whole_half_metre() -> None:
