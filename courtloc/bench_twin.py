@@ -490,9 +490,8 @@ def run_scenario(sc, args: argparse.Namespace, infer_fields: dict[str, Any],  # 
         result["kidnaps"] = kidnap_metrics(poses, truths, kidnaps, end_ns)
     result["fusion"] = "fused" if fused else "vision_only"
     if fused:  # what reached the infer stage: its fusion's counters and the bridge's odometry intake
-        result["odometry"] = {stage: {k: v for k, v in health.get(stage, {}).items()
-                                      if k.startswith(("fusion.", "odom_", "mcu_odometry", "mcu_connects"))
-                                      or k == "superseded"}
+        intake = ("fusion.", "odom_", "mcu_odometry", "mcu_connects", "superseded")
+        result["odometry"] = {stage: {k: v for k, v in health.get(stage, {}).items() if k.startswith(intake)}
                               for stage in ("shooter_bridge", "infer")}
     result.update(description=sc.description, frames=len(truths), camera_fps=camera_fps,
                   restarts=summary["restarts_by_process"],

@@ -13,6 +13,8 @@ stage runs per frame: `GeometricPredictor.track`, the same fit from the motion f
 filter's predict and update (a state started at the perturbed pose one frame period earlier). `global_search`
 times the court search's candidates alone (search.py: the cost volume and its lowest poses), compiled
 (search_kernel.c) and numpy side by side: what an acquiring frame of the infer stage runs once or twice.
+`marks_search` (a court with colour marks) times what the colour-marks search adds to it on the frames showing
+`search.marks_min` marks or more (marks_search.py: the marks' share over the grid and its lowest poses).
 """
 from __future__ import annotations
 
@@ -29,8 +31,12 @@ from courtloc.lab.eval import default_model_path
 from courtloc.localizer import motion
 from courtloc.localizer.fit import kernel_active, kernel_enabled
 from courtloc.localizer.geometric import GeometricLocalizer
+from courtloc.localizer.marks import mark_points
 from courtloc.localizer.predictor import load_predictor
 from courtloc.localizer.search import kernel_available as search_kernel_available
+from courtloc.scan.config import PreprocessConfig
+from courtloc.scan.preprocessor import Preprocessor
+from courtloc.services.deployment import court_marks
 from courtloc.sim.edges import scan_hits
 from courtloc.sim.render import Renderer
 
@@ -49,17 +55,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_json_argument(parser, "the result")
 
 
-def _frames(predictor, n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
+def _frames(predictor, n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(true pose, hits, colour marks) of `n` twin frames with 20 hits or more."""
     court, camera = predictor.package.court, predictor.package.camera
     renderer = Renderer(court, camera)
+    marks_finder = Preprocessor(PreprocessConfig(marks=court_marks(court.name)))  # as the stage finds them
     rng = np.random.default_rng(seed)
     hx, hy = court.area_half_extent_m
     out = []
     while len(out) < n:
         pose = np.array([rng.uniform(-0.8 * hx, 0.8 * hx), rng.uniform(-0.8 * hy, 0.8 * hy), rng.uniform(-math.pi, math.pi)])
-        hits = scan_hits(renderer.render(tuple(pose)))
+        image = renderer.render(tuple(pose))
+        hits = scan_hits(image)
         if len(hits) >= 20:
-            out.append((pose, hits))
+            out.append((pose, hits, marks_finder.marks(image)))
     return out
 
 
@@ -91,8 +100,9 @@ def run(args: argparse.Namespace) -> int:
 
     motion_cfg = predictor.localizer.config.motion
     ms: dict[str, list[float]] = {k: [] for k in ("track", "track_numpy", "cold", "cold_numpy", "onnx", "seq",
-                                                 "filtered", "search", "search_numpy")}
+                                                 "filtered", "search", "search_numpy", "marks_search")}
     coarse = predictor.localizer.search
+    marks_search, search_cfg = predictor.localizer.marks_search, predictor.localizer.config.search
     errors, path_diff, seq_diff = [], [], []
 
     def idle() -> None:
@@ -103,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
         with kernel_enabled(False):
             return predictor.predict(*a, **kw)
 
-    for pose, hits in frames:
+    for pose, hits, marks in frames:
         predictor.predict(hits, w, h, previous=pose)  # warm caches
         numpy_predict(hits, w, h, previous=pose)
         for _ in range(args.repeats):
@@ -126,8 +136,12 @@ def run(args: argparse.Namespace) -> int:
                 ms["seq"].append(t)
                 seq_diff.append(math.hypot(res.pose[0] - pred.x, res.pose[1] - pred.y))
         projected = predictor.projected_hits(hits)
+        points = mark_points(predictor.floor_table, w, marks) if marks_search is not None else None
         for _ in range(args.cold_repeats):
             ms["search"].append(_timed(lambda: coarse.candidates(projected))[0])
+            if points is not None and len(points) >= search_cfg.marks_min:
+                cost = coarse.costs(projected)
+                ms["marks_search"].append(_timed(lambda: marks_search.candidates(cost, points, [], search_cfg))[0])
             with kernel_enabled(False):
                 ms["search_numpy"].append(_timed(lambda: coarse.candidates(projected))[0])
             t, pred = _timed(lambda: predictor.predict(hits, w, h))
@@ -139,11 +153,13 @@ def run(args: argparse.Namespace) -> int:
     result = {
         "bench": "localize", "package": str(package), "frames": len(frames), "idle_ms": args.idle_ms,
         "hits_per_frame_median": float(np.median([len(f[1]) for f in frames])),
+        "marks_per_frame_median": float(np.median([len(f[2]) for f in frames])),
         "compiled_kernel": compiled,
         "tracking": _stats(ms["track"]), "tracking_filtered": _stats(ms["filtered"]), "cold_start": _stats(ms["cold"]),
         "onnx_hits_to_floor": _stats(ms["onnx"]),
         "global_search": _stats(ms["search"]), "global_search_numpy": _stats(ms["search_numpy"]),
         "compiled_search_kernel": search_kernel_available(),
+        "marks_search": _stats(ms["marks_search"]), "marks_search_max_points": search_cfg.marks_max_points,
         "tracking_error_median_m": float(np.median(errors)),
     }
     if compiled:
